@@ -1,0 +1,102 @@
+"""The BoB rule, eq. (5) of the paper: aggregation, goal seeking, leader-follower.
+
+    v_i = H beta_i + (1/N_i) sum_{j in N_i} gamma_ij f(d_ij) + (H/N_i) sum_{j in R_i + {i}} theta_j
+
+beta_i is the unit bearing from agent i to its goal, gamma_ij the unit vector
+from i to neighbour j at distance d_ij, theta_j the unit heading vector of j,
+N_i the number of neighbours heard and R_i those within p0 (d_ij <= p0). The
+desired velocity is `speed_scale * v_i` m/s, capped at `max_speed`.
+
+The pair factor, as printed, is f = (1 - H) - p0^2 / d^2. We read it as the
+design note puts it, "zero at p0, attracts beyond it when H = 0, only repels
+when H = 1": for H = 0, f = 1 - p0^2/d^2 (zero at p0, attraction beyond,
+repulsion inside); for H = 1, f = min(0, 1 - p0^2/d^2), which repels only
+inside p0 and is zero beyond. (The printed -p0^2/d^2 would repel at every
+range, so an agent could never pass between fixed agents spaced 2 p0 apart;
+with our reading an agent with p0 = 50 m goes through a fixed lattice spaced
+100 m and one with p0 = 100 m goes around it, as in the paper's figure.)
+
+An agent that hears nobody has zero pair and consensus terms. Uses:
+aggregation is BobRule(H=0); goal seeking BobRule(H=1, goal=(x, y));
+leader-follower BobRule(H=1, leader_id=k): the goal is the position of agent
+k where the agent hears it (k among its neighbour pairs), otherwise the last
+position heard, kept in the memory field "goal"; never heard, no goal term.
+An agent never takes itself as goal (the leader's own goal term is zero).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from behaviors.base import Behavior, FloatArray, MemorySpec, View, Wish, heading_vectors, limit_speed, unit
+
+
+@dataclass
+class BobRule(Behavior):
+    """Lattice-forming motion with an optional goal (eq. 5).
+
+    p0: equilibrium distance between neighbours, m.
+    H: heading consensus weight, 0 (position only among the others) or 1
+        (go to the goal, align with neighbours within p0, repel only).
+    speed_scale: m/s per unit of v_i (the desired velocity is speed_scale * v_i).
+    max_speed: cap on the desired speed, m/s.
+    goal: fixed goal (x, y), m, or None.
+    leader_id: id of the agent whose position is the goal (leader-follower),
+        or None. Not together with `goal`.
+    """
+
+    name: ClassVar[str] = "bob-rule"
+    memory_fields: ClassVar[dict[str, MemorySpec]] = {"goal": MemorySpec(shape=(2,))}
+    p0: float = 10.0
+    H: int = 0
+    speed_scale: float = 0.5
+    max_speed: float = 1.0
+    goal: tuple[float, float] | None = None
+    leader_id: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.H not in (0, 1):
+            raise ValueError(f"H must be 0 or 1, not {self.H!r}")
+        if self.goal is not None and self.leader_id is not None:
+            raise ValueError("give either a fixed goal or a leader_id, not both")
+
+    def step(self, view: View) -> Wish:
+        goal = self.goals(view)
+        count = view.neighbor_count()
+        per_neighbour = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
+        d = view.offsets()
+        d2 = np.einsum("ij,ij->i", d, d)
+        v = per_neighbour[:, None] * view.sum_pairs(unit(d) * self.pair_factor(d2)[:, None])
+        if self.H:
+            # A leader's own goal is its position: a zero bearing, so no goal term.
+            to_goal = np.where(np.isfinite(goal), goal - view.position, 0.0)
+            within = view.restrict(d2 <= self.p0**2)
+            heard = within.sum_pairs(heading_vectors(view.table.heading[within.pair_j]))
+            thetas = heading_vectors(view.heading) + heard
+            v = v + self.H * unit(to_goal) + self.H * per_neighbour[:, None] * thetas
+        velocity = limit_speed(self.speed_scale * v, self.max_speed)
+        return Wish(velocity, np.full(view.n, np.nan), {"goal": goal})
+
+    def pair_factor(self, d2: FloatArray) -> FloatArray:
+        """(M,) f(d) from squared distances d2 (m^2); 0 for coincident agents."""
+        f = 1.0 - np.divide(self.p0**2, d2, out=np.full_like(d2, np.inf), where=d2 > 0.0)
+        if self.H:
+            f = np.minimum(f, 0.0)
+        return np.where(d2 > 0.0, f, 0.0)
+
+    def goals(self, view: View) -> FloatArray:
+        """(n, 2) each agent's goal, m (NaN if none is known); the new "goal" memory."""
+        if self.goal is not None:
+            return np.tile(np.asarray(self.goal, dtype=float), (view.n, 1))
+        remembered = view.table.memory.get("goal")
+        goal = np.full((view.n, 2), np.nan) if remembered is None else remembered[view.rows].copy()
+        if self.leader_id is None:
+            return goal
+        heard = view.table.ids[view.pair_j] == self.leader_id
+        goal[view.pair_i[heard]] = view.table.position[view.pair_j[heard]]
+        is_self = view.table.ids[view.rows] == self.leader_id
+        goal[is_self] = view.position[is_self]
+        return goal

@@ -1,0 +1,63 @@
+"""Heading consensus, eq. (2) of the paper, with leaders.
+
+Each agent's target heading is the mean of the unit heading vectors of itself
+and its neighbours, theta_i[k+1] = sum_{j in N_i + {i}} theta_j[k] / (N_i + 1).
+A leader keeps a fixed heading and does not average; the others, averaging
+with it, converge to it (leader-follower).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from behaviors.base import Behavior, MemorySpec, View, Wish, heading_vectors, wrap_angle
+
+
+@dataclass
+class HeadingConsensus(Behavior):
+    """Align headings with the neighbours by averaging (eq. 2).
+
+    cruise_speed: forward speed while aligning, m/s (0 turns in place).
+    """
+
+    name: ClassVar[str] = "heading-consensus"
+    cruise_speed: float = 0.0
+
+    def step(self, view: View) -> Wish:
+        own = heading_vectors(view.heading)
+        neighbours = heading_vectors(view.table.heading[view.pair_j])
+        total = own + view.sum_pairs(neighbours)
+        # A zero resultant (exactly opposed headings) has no mean: keep one's own.
+        degenerate = np.hypot(total[:, 0], total[:, 1]) < 1e-12
+        target = np.where(degenerate, view.heading, np.arctan2(total[:, 1], total[:, 0]))
+        return Wish(self.cruise_speed * heading_vectors(target), wrap_angle(target))
+
+
+@dataclass
+class HoldHeading(Behavior):
+    """A leader: stop averaging and hold a heading.
+
+    The held heading is the agent's heading when it first runs this behaviour
+    plus `turn_deg` (degrees, counter-clockwise), or `heading_deg` if given.
+    cruise_speed: forward speed, m/s.
+    """
+
+    name: ClassVar[str] = "hold-heading"
+    memory_fields: ClassVar[dict[str, MemorySpec]] = {"held_heading": MemorySpec()}
+    turn_deg: float = 0.0
+    heading_deg: float | None = None
+    cruise_speed: float = 0.0
+
+    def step(self, view: View) -> Wish:
+        held = view.table.memory["held_heading"][view.rows].copy()
+        unset = np.isnan(held)
+        if self.heading_deg is not None:
+            held[unset] = math.radians(self.heading_deg)
+        else:
+            held[unset] = view.heading[unset] + math.radians(self.turn_deg)
+        held = wrap_angle(held)
+        return Wish(self.cruise_speed * heading_vectors(held), held, {"held_heading": held})

@@ -1,0 +1,69 @@
+"""Perimeter defence, eq. (3) of the paper, moving away from the neighbours.
+
+Eq. (3) as printed, sum_j (p_j - p_i) / |p_j - p_i|^2, points towards the
+neighbours; perimeter defence maximizes the distance to them, so the agent
+moves along its negative: away from each neighbour with weight 1 / distance,
+closer neighbours weighing more. Obstacle points from the range finders may be
+added to the sum like neighbours so that walls repel too (as marabunta's area
+coverage does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from behaviors.base import Behavior, FloatArray, View, Wish, unit
+
+
+def repulsion(view: View) -> FloatArray:
+    """(n, 2) the sum of -(p_j - p_i) / |p_j - p_i|^2 over each agent's neighbours, 1/m."""
+    d = view.offsets()
+    d2 = np.einsum("ij,ij->i", d, d)
+    weight = np.divide(-1.0, d2, out=np.zeros_like(d2), where=d2 > 0.0)
+    return view.sum_pairs(d * weight[:, None])
+
+
+def obstacle_repulsion(offsets: FloatArray) -> FloatArray:
+    """(n, 2) the same sum over (n, K, 2) obstacle offsets (NaN = no echo), 1/m."""
+    if offsets.shape[1] == 0:
+        return np.zeros((offsets.shape[0], 2))
+    d2 = np.einsum("nkc,nkc->nk", offsets, offsets)
+    seen = np.isfinite(d2) & (d2 > 0.0)
+    weight = np.divide(-1.0, d2, out=np.zeros_like(d2), where=seen)
+    return np.einsum("nkc,nk->nc", np.where(seen[..., None], offsets, 0.0), weight)
+
+
+@dataclass
+class PerimeterDefense(Behavior):
+    """Spread out: move away from neighbours, the closer the stronger (eq. 3).
+
+    max_speed: speed when the repulsion is at least `full_speed_at`, m/s.
+    full_speed_at: repulsion magnitude (1/m) giving full speed; weaker
+        repulsion gives proportionally lower speed, so agents settle.
+    dead_band: repulsion magnitude (1/m) below which the agent stops.
+    obstacle_weight: weight of range-finder echoes relative to neighbours
+        (0 ignores obstacles).
+    """
+
+    name: ClassVar[str] = "perimeter-defense"
+    max_speed: float = 0.2
+    full_speed_at: float = 1.0
+    dead_band: float = 0.02
+    obstacle_weight: float = 1.0
+
+    def direction(self, view: View) -> FloatArray:
+        """(n, 2) the un-normalized direction of eq. (3), negated, plus obstacles, 1/m."""
+        force = repulsion(view)
+        if self.obstacle_weight:
+            force += self.obstacle_weight * obstacle_repulsion(view.senses.obstacles[view.rows])
+        return force
+
+    def step(self, view: View) -> Wish:
+        force = self.direction(view)
+        magnitude = np.hypot(force[:, 0], force[:, 1])
+        speed = self.max_speed * np.clip(magnitude / self.full_speed_at, 0.0, 1.0)
+        speed[magnitude < self.dead_band] = 0.0
+        return Wish(unit(force) * speed[:, None], np.full(view.n, np.nan))

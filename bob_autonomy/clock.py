@@ -1,0 +1,41 @@
+"""Injected time: wall time on a vessel, simulated time in lockstep runs."""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    """A source of time in seconds."""
+
+    def now(self) -> float:
+        """Current time, s."""
+        ...
+
+
+class WallClock:
+    """Monotonic wall-clock time, s (on a vessel)."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+
+class ManualClock:
+    """Time that moves only when told to (simulation and tests), s."""
+
+    def __init__(self, start_s: float = 0.0) -> None:
+        self._t = start_s
+
+    def now(self) -> float:
+        return self._t
+
+    def advance(self, dt_s: float) -> None:
+        if dt_s < 0:
+            raise ValueError(f"time cannot go backwards (dt_s={dt_s})")
+        self._t += dt_s
+
+    def set(self, t_s: float) -> None:
+        if t_s < self._t:
+            raise ValueError(f"time cannot go backwards ({t_s} < {self._t})")
+        self._t = t_s

@@ -1,0 +1,1 @@
+"""Software in the loop: simulated bodies, world and network, scenarios, metrics and plots."""

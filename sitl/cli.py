@@ -1,0 +1,52 @@
+"""The `bob-sitl` command: list and run scenarios."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from sitl.runner import run_to_directory
+from sitl.scenario import ScenarioError, load_scenario, packaged_scenarios
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="bob-sitl", description="BoB autonomy software-in-the-loop simulator")
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="list the packaged scenarios")
+    run = sub.add_parser("run", help="run a scenario (packaged NAME or a TOML FILE)")
+    run.add_argument("scenario", metavar="NAME|FILE")
+    run.add_argument("--agents", type=int, help="number of agents (resizes the scenario's main group)")
+    run.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    run.add_argument("--duration", type=float, metavar="SECONDS", help="simulated duration, s")
+    run.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/NAME)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.command == "list":
+        for name, description in packaged_scenarios().items():
+            print(f"{name:24s} {description}")
+        return 0
+    try:
+        scenario = load_scenario(args.scenario).with_overrides(args.agents, args.seed, args.duration)
+    except ScenarioError as error:
+        print(f"bob-sitl: {error}", file=sys.stderr)
+        return 2
+    out = args.out or Path("runs") / scenario.name
+    try:
+        result = run_to_directory(scenario, out, progress=not args.quiet)
+    except (ScenarioError, FileExistsError) as error:
+        print(f"bob-sitl: {error}", file=sys.stderr)
+        return 2
+    summary = {k: v for k, v in result.metrics.items() if not isinstance(v, dict) or k == "criteria"}
+    print(json.dumps(summary, indent=2))
+    print(f"outputs in {out}/", file=sys.stderr)
+    return 0 if result.metrics["passed"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

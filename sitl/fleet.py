@@ -1,0 +1,214 @@
+"""The lockstep fleet: every agent's body, network and behaviour stepped at once.
+
+One step: sense, read what the medium delivered, run each behaviour on its
+agents (array functions, no loop over agents), move the bodies, broadcast when
+due. Time is simulated and advances by dt per step; nothing sleeps; a seed fixes
+every random choice, so a run is exactly repeatable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from behaviors.base import Behavior, MemorySpec, Senses, View, Wish
+from sitl.bodies import BODY_KINDS, EBOT, KinematicBodies
+from sitl.medium import BroadcastMedium
+from sitl.scenario import Event, Scenario, ScenarioError
+from sitl.world import FloatArray, World, points_in_polygon, polygon_segments
+
+
+def build_world(scenario: Scenario, rng: np.random.Generator) -> World:
+    """Walls, rooms and lights of a scenario (random light placement uses `rng`)."""
+    spec = scenario.world
+    segments = [polygon_segments(np.array(r.polygon)) for r in spec.rooms if r.walls]
+    if spec.walls:
+        segments.append(np.array(spec.walls, dtype=float))
+    walls = np.concatenate(segments) if segments else np.zeros((0, 2, 2))
+    rooms = [np.array(r.polygon, dtype=float) for r in spec.rooms]
+    lights = [
+        np.array(light.position) if light.position else rng.uniform(light.box.min, light.box.max)
+        for light in spec.lights
+    ]
+    return World(
+        walls=walls,
+        rooms=rooms,
+        light_positions=np.array(lights).reshape(-1, 2),
+        light_power_w=np.array([light.power_w for light in spec.lights]),
+        light_height_m=spec.light_height_m,
+    )
+
+
+def initial_poses(scenario: Scenario, world: World, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
+    """Start positions (N, 2) m and headings (N,) rad drawn in each group's box."""
+    positions, headings = [], []
+    for group in scenario.groups:
+        box = group.start.box
+        placed = _sample_separated(group.count, box.min, box.max, group.start.min_separation_m, world, rng)
+        positions.append(placed)
+        if group.start.heading_deg == "random":
+            headings.append(rng.uniform(-np.pi, np.pi, group.count))
+        else:
+            headings.append(np.full(group.count, np.radians(group.start.heading_deg)))
+    return np.concatenate(positions), np.concatenate(headings)
+
+
+def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.random.Generator) -> FloatArray:
+    """n points uniform in a box, inside the rooms, at least `separation` m apart (rejection)."""
+    points: list[FloatArray] = []
+    for _ in range(200 * n):
+        if len(points) == n:
+            break
+        candidate = rng.uniform(lo, hi)
+        if not world.inside_rooms(candidate[None])[0]:
+            continue
+        if separation and points and np.min(np.hypot(*(np.array(points) - candidate).T)) < separation:
+            continue
+        points.append(candidate)
+    if len(points) < n:
+        raise ScenarioError(f"cannot place {n} agents {separation} m apart in box {lo}..{hi}")
+    return np.array(points)
+
+
+class LockstepFleet:
+    """All agents of a scenario in one process, stepped in lockstep."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        self.rng = np.random.default_rng(scenario.seed)
+        self.world = build_world(scenario, self.rng)
+        position, heading = initial_poses(scenario, self.world, self.rng)
+        kinds = np.concatenate([np.full(g.count, BODY_KINDS[g.body]) for g in scenario.groups])
+        self.bodies = KinematicBodies(kinds, position, heading)
+        self.n = len(self.bodies)
+        self.group_of = np.concatenate([np.full(g.count, k) for k, g in enumerate(scenario.groups)])
+        self.group_names = [g.name for g in scenario.groups]
+        self.behaviors: list[Behavior] = [g.build() for g in scenario.groups]
+        self.assignment = self.group_of.copy()
+        memory = self._memory_fields(scenario)
+        net = scenario.network
+        self.medium = BroadcastMedium(self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory)
+        self.table = self.medium.table
+        self.table.ids[: self.n] = np.arange(self.n)
+        self.own_memory = {name: self.table.memory[name][: self.n] for name in memory}
+        self.pending = sorted(scenario.events, key=lambda e: e.t_s)
+        self.step_index = 0
+        self.t = 0.0
+        self.events_log: list[dict] = []
+        self.sync_table()
+
+    @staticmethod
+    def _memory_fields(scenario: Scenario) -> dict[str, MemorySpec]:
+        fields: dict[str, MemorySpec] = {}
+        choices = [g.build() for g in scenario.groups]
+        choices += [e.choice.build() for e in scenario.events if e.choice is not None]
+        for behavior in choices:
+            for name, spec in behavior.memory_fields.items():
+                if name in fields and fields[name] != spec:
+                    raise ScenarioError(f"behaviours disagree on memory field {name!r}")
+                fields[name] = spec
+        return fields
+
+    @property
+    def active(self) -> NDArray[np.bool_]:
+        return self.bodies.active
+
+    def behavior_names(self) -> list[str]:
+        """Name of the behaviour each agent runs."""
+        names = [b.name for b in self.behaviors]
+        return [names[k] for k in self.assignment]
+
+    def sync_table(self) -> None:
+        """Copy the bodies' current states into table rows [0, N) (what each agent knows of itself)."""
+        n = self.n
+        self.table.position[:n] = self.bodies.position
+        self.table.heading[:n] = self.bodies.heading
+        self.table.velocity[:n] = self.bodies.velocity
+
+    def senses(self) -> Senses:
+        """Range finders and light sensors of the eBots; buoys sense neither (NaN)."""
+        ebots = self.bodies.ebots[self.active[self.bodies.ebots]]
+        has_sonar = self.bodies.ebots.size > 0
+        obstacles = np.full((self.n, 6 if has_sonar else 0, 2), np.nan)
+        light = np.full((self.n, 2), np.nan)
+        if ebots.size:
+            obstacles[ebots] = self.bodies.range_finders(ebots, self.world)
+            light[ebots] = self.bodies.light_sensors(ebots, self.world)
+        return Senses(obstacles=obstacles, light=light)
+
+    def step(self) -> None:
+        """Advance the whole fleet by one dt."""
+        self.apply_events()
+        self.sync_table()
+        wish = self.decide(self.senses())
+        self.finish_step(wish)
+
+    def finish_step(self, wish: Wish) -> None:
+        """Broadcast (when due) the states the decisions were made from, then move the bodies.
+
+        Messages sent at step k are heard from step k + 1 on, exactly as an
+        agent that broadcasts at the end of its update.
+        """
+        if self.medium.due(self.t):
+            self.medium.broadcast(self.t, self.active)
+        self.bodies.apply(wish.velocity, wish.heading, self.scenario.dt_s, self.world)
+        self.step_index += 1
+        self.t = self.step_index * self.scenario.dt_s
+
+    def decide(self, senses: Senses) -> Wish:
+        """Every active agent's wish from its behaviour (velocity m/s, heading rad)."""
+        listener, message, _age = self.medium.heard(self.t, self.active)
+        velocity = np.zeros((self.n, 2))
+        heading = np.full(self.n, np.nan)
+        local = np.full(self.n, -1, dtype=np.intp)
+        for k, behavior in enumerate(self.behaviors):
+            rows = np.flatnonzero((self.assignment == k) & self.active)
+            if rows.size == 0:
+                continue
+            local[rows] = np.arange(rows.size)
+            keep = local[listener] >= 0
+            view = View(self.table, senses, rows, local[listener[keep]], message[keep], self.t)
+            local[rows] = -1
+            wish = behavior.step(view)
+            velocity[rows] = wish.velocity
+            heading[rows] = wish.heading
+            for name, values in wish.memory.items():
+                self.own_memory[name][rows] = values
+        return Wish(velocity, heading)
+
+    def apply_events(self) -> None:
+        """Carry out the scheduled events that are due at the current time."""
+        while self.pending and self.pending[0].t_s <= self.t + 1e-9:
+            event = self.pending.pop(0)
+            agents = self._event_agents(event)
+            if event.action == "remove":
+                self.bodies.active[agents] = False
+            else:
+                self.behaviors.append(event.choice.build())
+                self.assignment[agents] = len(self.behaviors) - 1
+            self.events_log.append({"t_s": round(self.t, 6), "action": event.action, "agents": agents.tolist()})
+
+    def _event_agents(self, event: Event) -> NDArray[np.intp]:
+        if event.agents is not None:
+            agents = np.array(event.agents, dtype=np.intp)
+            if agents.size and (agents.min() < 0 or agents.max() >= self.n):
+                raise ScenarioError(f"event at t={event.t_s} s names agents outside 0..{self.n - 1}")
+            return agents
+        pool = self.active.copy()
+        if event.group is not None:
+            pool &= self.group_of == self.group_names.index(event.group)
+        candidates = np.flatnonzero(pool)
+        if event.count > candidates.size:
+            raise ScenarioError(f"event at t={event.t_s} s wants {event.count} agents, only {candidates.size}")
+        return np.sort(self.rng.choice(candidates, size=event.count, replace=False))
+
+    def inside_rooms(self) -> NDArray[np.bool_]:
+        return self.world.inside_rooms(self.bodies.position)
+
+    def light_seen(self) -> bool:
+        """Whether any agent has recorded a light target (for search metrics)."""
+        light = self.own_memory.get("target_light")
+        return bool(light is not None and np.any(np.isfinite(light[self.active])))
+
+
+__all__ = ["EBOT", "LockstepFleet", "build_world", "initial_poses", "points_in_polygon"]

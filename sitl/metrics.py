@@ -1,0 +1,207 @@
+"""The figures each experiment is judged by, computed from recorded ground truth.
+
+Every metrics function returns a JSON-ready dict with the measured values,
+`criteria` (name -> bool) and `passed` (all criteria met).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sitl.fleet import LockstepFleet
+from sitl.recorder import Recorder
+from sitl.world import FloatArray, points_in_polygon
+
+MetricsFn = Callable[[LockstepFleet, Recorder, dict[str, float]], dict]
+
+
+def circular_mean(angles: FloatArray) -> float:
+    """Mean direction (rad) of angles in rad."""
+    return float(np.arctan2(np.sin(angles).mean(), np.cos(angles).mean()))
+
+
+def angle_diff_deg(a: FloatArray | float, b: FloatArray | float) -> FloatArray:
+    """|a - b| wrapped to [0, 180] degrees, for angles in rad."""
+    return np.degrees(np.abs(np.mod(np.asarray(a) - b + np.pi, 2 * np.pi) - np.pi))
+
+
+def heading_spread_deg(headings: FloatArray) -> float:
+    """Largest deviation (deg) of any heading from the circular mean."""
+    return float(angle_diff_deg(headings, circular_mean(headings)).max())
+
+
+def _frame_at(recorder: Recorder, t: float) -> int:
+    """Index of the last frame at or before t (s)."""
+    return max(0, int(np.searchsorted(recorder.times(), t + 1e-9)) - 1)
+
+
+def _first_time(times: FloatArray, ok: np.ndarray, after: float = -np.inf) -> float | None:
+    """First time (s) at or after `after` when `ok` holds."""
+    hits = np.flatnonzero(ok & (times >= after))
+    return float(times[hits[0]]) if hits.size else None
+
+
+def _settled_time(times: FloatArray, ok: np.ndarray, after: float = -np.inf) -> float | None:
+    """First time (s) after `after` from which `ok` holds until the end (None if it never settles)."""
+    late = times > after
+    broken = np.flatnonzero(late & ~ok)
+    start = broken[-1] + 1 if broken.size else np.flatnonzero(late)[0] if late.any() else times.size
+    return float(times[start]) if start < times.size and ok[start] else None
+
+
+def _finish(result: dict) -> dict:
+    result["passed"] = bool(all(result["criteria"].values()))
+    return result
+
+
+def heading_consensus_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
+    """Consensus time, and the swarm following a leader that holds another heading."""
+    tol = p.get("tolerance_deg", 5.0)
+    consensus_by = p.get("consensus_by_s", 11.0)
+    follow_by = p.get("follow_by_s", 40.0)
+    min_offset = p.get("min_leader_offset_deg", 60.0)
+    times = rec.times()
+    spread = np.array([heading_spread_deg(f.heading) for f in rec.frames])
+    leader_events = [e for e in fleet.events_log if e["action"] == "set-behavior"]
+    # Consensus before any leader appears: frames up to the first leader event.
+    end = _frame_at(rec, leader_events[0]["t_s"] - 1e-6) + 1 if leader_events else times.size
+    result: dict = {
+        "tolerance_deg": tol,
+        "initial_spread_deg": float(spread[0]),
+        "consensus_time_s": _settled_time(times[:end], spread[:end] <= tol),
+        "spread_at_consensus_deadline_deg": float(spread[_frame_at(rec, consensus_by)]),
+        "heading_spread_deg": {"t_s": times.tolist(), "value": spread.round(3).tolist()},
+    }
+    criteria = {f"within_{tol:g}_deg_by_{consensus_by:g}_s": result["spread_at_consensus_deadline_deg"] <= tol}
+    if leader_events:
+        event = leader_events[0]
+        leader = event["agents"][0]
+        before = rec.frames[_frame_at(rec, event["t_s"])]
+        swarm_heading = circular_mean(before.heading)
+        final = rec.frames[-1]
+        held = float(final.heading[list(final.agents).index(leader)])
+        deviation = np.array(
+            [angle_diff_deg(f.heading, f.heading[list(f.agents).index(leader)]).max() for f in rec.frames]
+        )
+        result.update(
+            leader=leader,
+            leader_event_t_s=event["t_s"],
+            leader_offset_from_swarm_deg=float(angle_diff_deg(held, swarm_heading)),
+            follow_time_s=_settled_time(times, deviation <= tol, after=event["t_s"]),
+            deviation_from_leader_at_deadline_deg=float(deviation[_frame_at(rec, follow_by)]),
+        )
+        criteria[f"leader_offset_at_least_{min_offset:g}_deg"] = result["leader_offset_from_swarm_deg"] >= min_offset
+        criteria[f"follow_within_{tol:g}_deg_by_{follow_by:g}_s"] = (
+            result["deviation_from_leader_at_deadline_deg"] <= tol
+        )
+    result["criteria"] = criteria
+    return _finish(result)
+
+
+def _room_grid(fleet: LockstepFleet, spacing_m: float) -> FloatArray:
+    room = fleet.world.rooms[0]
+    lo, hi = room.min(axis=0), room.max(axis=0)
+    xs = np.arange(lo[0] + spacing_m / 2, hi[0], spacing_m)
+    ys = np.arange(lo[1] + spacing_m / 2, hi[1], spacing_m)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    return grid[points_in_polygon(grid, room)]
+
+
+def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
+    """Coverage of the room against time, and re-spreading after robots are removed."""
+    cover_radius = p.get("cover_radius_m", 1.5)
+    min_final_coverage = p.get("min_final_coverage", 0.6)
+    grid = _room_grid(fleet, p.get("grid_m", 0.1))
+    times = rec.times()
+    gap, coverage, nn, inside = [], [], [], []
+    for f in rec.frames:
+        distance, _ = cKDTree(f.position).query(grid)
+        gap.append(distance.max())
+        coverage.append(np.mean(distance <= cover_radius))
+        pair, _ = cKDTree(f.position).query(f.position, k=2) if len(f.position) > 1 else (np.zeros((1, 2)), None)
+        nn.append(pair[:, 1].mean())
+        inside.append(bool(fleet.world.inside_rooms(f.position).all()))
+    gap, coverage = np.array(gap), np.array(coverage)
+    result: dict = {
+        "agents": int(fleet.n),
+        "cover_radius_m": cover_radius,
+        "initial_coverage": float(coverage[0]),
+        "final_coverage": float(coverage[-1]),
+        "final_largest_gap_m": float(gap[-1]),
+        "final_mean_nearest_neighbor_m": float(nn[-1]),
+        "always_inside_room": bool(all(inside)),
+        "wall_contacts": int(fleet.bodies.wall_contacts),
+        "coverage": {"t_s": times.tolist(), "value": np.round(coverage, 4).tolist()},
+        "largest_gap_m": {"t_s": times.tolist(), "value": np.round(gap, 3).tolist()},
+    }
+    criteria = {
+        "always_inside_room": result["always_inside_room"],
+        f"final_coverage_at_least_{min_final_coverage:g}": result["final_coverage"] >= min_final_coverage,
+        "coverage_grew": result["final_coverage"] > result["initial_coverage"],
+    }
+    removals = [e for e in fleet.events_log if e["action"] == "remove"]
+    if removals:
+        t_r = removals[0]["t_s"]
+        k_before = _frame_at(rec, t_r)  # frames at t_r show the state before that step's events
+        k_after = min(k_before + 1, len(rec.frames) - 1)
+        result.update(
+            removed_agents=[a for e in removals for a in e["agents"]],
+            removal_t_s=t_r,
+            coverage_before_removal=float(coverage[k_before]),
+            coverage_after_removal=float(coverage[k_after]),
+            largest_gap_before_removal_m=float(gap[k_before]),
+            largest_gap_after_removal_m=float(gap[k_after]),
+        )
+        # Re-spread: the swarm wins back at least half of the coverage the removal cost.
+        lost = coverage[k_before] - coverage[k_after]
+        criteria["respread_after_removal"] = bool(coverage[-1] >= coverage[k_after] + 0.5 * lost)
+    result["criteria"] = criteria
+    return _finish(result)
+
+
+def search_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
+    """Time of the first detection and of every robot being near the source."""
+    arrive_within = p.get("arrival_radius_m", 1.0)
+    source = fleet.world.light_positions[0]
+    times = rec.times()
+    seen = np.array([f.light_seen for f in rec.frames])
+    far = np.array([np.hypot(*(f.position - source).T).max() for f in rec.frames])
+    first = _first_time(times, seen)
+    arrival = _first_time(times, far <= arrive_within)
+    result = {
+        "agents": int(fleet.n),
+        "source_m": source.round(3).tolist(),
+        "first_detection_s": first,
+        "all_arrived_s": arrival,
+        "detection_speed_per_s": 1.0 / first if first else None,
+        "arrival_speed_per_s": 1.0 / arrival if arrival else None,
+        "arrival_radius_m": arrive_within,
+        "farthest_from_source_m": {"t_s": times.tolist(), "value": np.round(far, 3).tolist()},
+        "criteria": {"light_detected": first is not None, f"all_within_{arrive_within:g}_m": arrival is not None},
+    }
+    return _finish(result)
+
+
+def generic_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
+    """Final spread of the swarm."""
+    final = rec.frames[-1]
+    centre = final.position.mean(axis=0)
+    return _finish(
+        {
+            "agents": int(fleet.n),
+            "final_centroid_m": centre.round(3).tolist(),
+            "final_rms_radius_m": float(np.sqrt(((final.position - centre) ** 2).sum(axis=1).mean())),
+            "criteria": {},
+        }
+    )
+
+
+METRICS: dict[str, MetricsFn] = {
+    "heading-consensus": heading_consensus_metrics,
+    "perimeter-defense": perimeter_defense_metrics,
+    "search-exploration": search_metrics,
+    "generic": generic_metrics,
+}

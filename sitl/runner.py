@@ -1,0 +1,92 @@
+"""Run a scenario to completion and write its outputs, all or nothing."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from sitl.fleet import LockstepFleet
+from sitl.metrics import METRICS
+from sitl.plots import write_figures
+from sitl.recorder import Frame, Recorder
+from sitl.scenario import Scenario, scenario_to_toml
+
+
+@dataclass
+class RunResult:
+    """What a run produced: the fleet at the end, its recording and its metrics."""
+
+    fleet: LockstepFleet
+    recorder: Recorder
+    metrics: dict
+
+
+def simulate(scenario: Scenario, progress: bool = False) -> RunResult:
+    """Step a lockstep fleet through the scenario, recording ground truth; no files."""
+    fleet = LockstepFleet(scenario)
+    recorder = Recorder(scenario.log_period_s, [str(k) for k in _body_names(fleet)])
+    steps = round(scenario.duration_s / scenario.dt_s)
+    bar = tqdm(total=steps, desc=scenario.name, unit="step", disable=not progress, mininterval=0.5)
+    for _ in range(steps + 1):
+        if recorder.due(fleet.t):
+            recorder.record(_frame(fleet))
+        if fleet.step_index == steps:
+            break
+        fleet.step()
+        bar.update(1)
+    bar.close()
+    metrics = METRICS[scenario.metrics.kind](fleet, recorder, dict(scenario.metrics.params))
+    metrics = {"scenario": scenario.name, "seed": scenario.seed, "duration_s": scenario.duration_s, **metrics}
+    metrics["network"] = {"sent": fleet.medium.sent, "delivered": fleet.medium.delivered}
+    return RunResult(fleet, recorder, metrics)
+
+
+def _body_names(fleet: LockstepFleet) -> list[str]:
+    names = {g.name: g.body for g in fleet.scenario.groups}
+    return [names[fleet.group_names[k]] for k in fleet.group_of]
+
+
+def _frame(fleet: LockstepFleet) -> Frame:
+    active = fleet.active.nonzero()[0]
+    bodies = fleet.bodies
+    return Frame(
+        t=round(fleet.t, 9),
+        agents=active,
+        position=bodies.position[active].copy(),
+        heading=bodies.heading[active].copy(),
+        velocity=bodies.velocity[active].copy(),
+        behavior=fleet.behavior_names(),
+        light_seen=fleet.light_seen(),
+    )
+
+
+def run_to_directory(scenario: Scenario, out: Path, progress: bool = False) -> RunResult:
+    """Simulate and write trajectory.csv, metrics.json, figures and scenario.toml to `out`.
+
+    Everything is written to a temporary directory beside `out` and moved in
+    place only when complete, so a failed run leaves no half-written output.
+    """
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not (out / "metrics.json").exists():
+        raise FileExistsError(f"{out} exists, is not empty and is not a previous run's output; choose another --out")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        result = simulate(scenario, progress)
+        result.recorder.write_csv(staging / "trajectory.csv")
+        figures = write_figures(result.fleet, result.recorder, result.metrics, staging)
+        result.metrics["figures"] = figures
+        (staging / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+        (staging / "scenario.toml").write_text(scenario_to_toml(scenario))
+        if out.exists():
+            shutil.rmtree(out)
+        staging.rename(out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return result

@@ -1,0 +1,293 @@
+"""Scenario files: TOML, validated with clear errors that name the file and the key.
+
+A scenario says what world, which agents (groups with a body and a behaviour),
+which network, which scheduled events and which metrics. `load_scenario` reads
+a packaged name or a path; `Scenario.model_validate` builds one from a dict
+(as the examples do in Python).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+
+from behaviors.base import Behavior
+from behaviors.registry import behavior_class, with_avoidance
+
+PositiveFloat = Annotated[float, Field(gt=0)]
+Point = tuple[float, float]
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be used; the message names the source and the key."""
+
+
+class Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Box(Model):
+    """An axis-aligned box, m: [[x_min, y_min], [x_max, y_max]]."""
+
+    min: Point
+    max: Point
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Box:
+        if self.max[0] < self.min[0] or self.max[1] < self.min[1]:
+            raise ValueError("max must not be below min")
+        return self
+
+
+class Start(Model):
+    """Where a group starts: uniformly at random in `box`; heading in degrees or random."""
+
+    box: Box
+    heading_deg: float | Literal["random"] = "random"
+    min_separation_m: float = Field(default=0.0, ge=0)
+
+
+class BehaviorChoice(Model):
+    """A behaviour by registered name, its parameters, and optional obstacle avoidance."""
+
+    behavior: str
+    params: dict[str, Any] = {}
+    avoid_obstacles: bool = False
+    avoid_params: dict[str, float] = {}
+
+    def build(self) -> Behavior:
+        """An instance of the chosen behaviour with validated parameters."""
+        cls = behavior_class(self.behavior)
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(self.params) - known)
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown} for {self.behavior!r}; known: {sorted(known)}")
+        behavior = TypeAdapter(cls).validate_python(self.params)
+        return with_avoidance(behavior, **self.avoid_params) if self.avoid_obstacles else behavior
+
+
+class Group(BehaviorChoice):
+    """`count` agents with the same body, start region and behaviour."""
+
+    name: str
+    count: int = Field(ge=1)
+    body: Literal["buoy", "ebot"]
+    start: Start
+
+
+class Event(Model):
+    """Something scheduled at `t_s`: agents change behaviour, or are removed.
+
+    The agents are `agents` (indices), or `count` of them drawn with the seed
+    from `group` (or from everyone).
+    """
+
+    t_s: float = Field(ge=0)
+    action: Literal["set-behavior", "remove"]
+    agents: list[int] | None = None
+    count: int | None = Field(default=None, ge=1)
+    group: str | None = None
+    choice: BehaviorChoice | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Event:
+        if (self.agents is None) == (self.count is None):
+            raise ValueError("give exactly one of 'agents' or 'count'")
+        if self.action == "set-behavior" and self.choice is None:
+            raise ValueError("'set-behavior' needs a 'choice' table with a 'behavior'")
+        return self
+
+
+class Room(Model):
+    """A polygon (m); its edges are walls unless `walls` is false."""
+
+    name: str = ""
+    polygon: list[Point] = Field(min_length=3)
+    walls: bool = True
+
+
+class Light(Model):
+    """A light source at `position`, or placed at random in `box`; power in W."""
+
+    position: Point | None = None
+    box: Box | None = None
+    power_w: PositiveFloat = 20.0
+
+    @model_validator(mode="after")
+    def _placed(self) -> Light:
+        if (self.position is None) == (self.box is None):
+            raise ValueError("give exactly one of 'position' or 'box'")
+        return self
+
+
+class WorldSpec(Model):
+    rooms: list[Room] = []
+    walls: list[tuple[Point, Point]] = []
+    lights: list[Light] = []
+    light_height_m: float = Field(default=0.3, ge=0)
+
+
+class NetworkSpec(Model):
+    """Broadcast radio: range (m), broadcast period (s), neighbour expiry (s)."""
+
+    range_m: PositiveFloat = 300.0
+    broadcast_period_s: PositiveFloat = 0.1
+    expiry_s: PositiveFloat = 1.0
+
+
+class MetricsSpec(Model):
+    """Which metrics and figures (`kind`) and their thresholds."""
+
+    kind: Literal["heading-consensus", "perimeter-defense", "search-exploration", "generic"] = "generic"
+    params: dict[str, float] = {}
+
+
+class Scenario(Model):
+    name: str
+    description: str = ""
+    duration_s: PositiveFloat
+    dt_s: PositiveFloat = 0.1
+    seed: int = 0
+    log_period_s: PositiveFloat = 0.5
+    resize_group: str | None = Field(default=None, description="group that --agents resizes (default: the first)")
+    world: WorldSpec = WorldSpec()
+    network: NetworkSpec = NetworkSpec()
+    groups: list[Group] = Field(min_length=1)
+    events: list[Event] = []
+    metrics: MetricsSpec = MetricsSpec()
+
+    @model_validator(mode="after")
+    def _references(self) -> Scenario:
+        names = [g.name for g in self.groups]
+        if len(set(names)) != len(names):
+            raise ValueError(f"group names must be unique, got {names}")
+        if self.resize_group is not None and self.resize_group not in names:
+            raise ValueError(f"resize_group {self.resize_group!r} is not a group ({names})")
+        for k, event in enumerate(self.events):
+            if event.group is not None and event.group not in names:
+                raise ValueError(f"events[{k}].group {event.group!r} is not a group ({names})")
+        for group in self.groups:
+            group.build()
+        for event in self.events:
+            if event.choice is not None:
+                event.choice.build()
+        return self
+
+    @property
+    def n_agents(self) -> int:
+        return sum(g.count for g in self.groups)
+
+    def with_overrides(
+        self, agents: int | None = None, seed: int | None = None, duration_s: float | None = None
+    ) -> Scenario:
+        """A copy with the command-line overrides applied (and validated)."""
+        data = self.model_dump()
+        if seed is not None:
+            data["seed"] = seed
+        if duration_s is not None:
+            data["duration_s"] = duration_s
+        if agents is not None:
+            target = self.resize_group or self.groups[0].name
+            others = sum(g.count for g in self.groups if g.name != target)
+            if agents <= others:
+                raise ScenarioError(f"--agents {agents}: the other groups already hold {others} agents")
+            for group in data["groups"]:
+                if group["name"] == target:
+                    group["count"] = agents - others
+        return validate_scenario(data, "command-line overrides")
+
+
+def _describe(error: ValidationError, source: str) -> str:
+    lines = [f"{source}: invalid scenario"]
+    for item in error.errors():
+        key = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        got = item.get("input")
+        shown = "" if isinstance(got, dict) else f" (got {got!r})"
+        lines.append(f"  key '{key}': {item['msg']}{shown}")
+    return "\n".join(lines)
+
+
+def validate_scenario(data: dict[str, Any], source: str) -> Scenario:
+    """A Scenario from a dict; ScenarioError names `source` and every bad key."""
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as error:
+        raise ScenarioError(_describe(error, source)) from None
+
+
+PACKAGED = resources.files("sitl") / "scenarios"
+
+
+def packaged_scenarios() -> dict[str, str]:
+    """Name -> one-line description of the scenarios shipped with the package."""
+    out = {}
+    for entry in sorted(PACKAGED.iterdir(), key=lambda e: e.name):
+        if entry.name.endswith(".toml"):
+            data = tomllib.loads(entry.read_text())
+            out[entry.name[:-5]] = str(data.get("description", "")).strip().splitlines()[0:1]
+    return {k: (v[0] if v else "") for k, v in out.items()}
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A packaged scenario by name, or a TOML file by path."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise ScenarioError(f"{path}: no such scenario file")
+        text, source = path.read_bytes(), str(path)
+    else:
+        entry = PACKAGED / f"{name_or_path}.toml"
+        if not entry.is_file():
+            known = ", ".join(packaged_scenarios())
+            raise ScenarioError(f"no scenario named {name_or_path!r}; packaged scenarios: {known}")
+        text, source = entry.read_bytes(), f"scenario {name_or_path!r}"
+    try:
+        data = tomllib.loads(text.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
+        raise ScenarioError(f"{source}: not valid TOML: {error}") from None
+    return validate_scenario(data, source)
+
+
+def scenario_to_toml(scenario: Scenario) -> str:
+    """The resolved scenario as TOML text (written beside every run's outputs)."""
+    return _toml_table(scenario.model_dump(exclude_none=True), [])
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float | np.floating):
+        return repr(float(value)) if isinstance(value, float) else str(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def _toml_key(key: str) -> str:
+    return key if key.replace("_", "").replace("-", "").isalnum() else _toml_value(key)
+
+
+def _toml_table(data: dict[str, Any], path: list[str]) -> str:
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict) and not _is_table_list(v)}
+    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in scalars.items()]
+    for key, value in data.items():
+        if isinstance(value, dict):
+            lines += ["", f"[{'.'.join([*path, key])}]", _toml_table(value, [*path, key])]
+        elif _is_table_list(value):
+            for item in value:
+                lines += ["", f"[[{'.'.join([*path, key])}]]", _toml_table(item, [*path, key])]
+    return "\n".join(line for line in lines if line is not None).strip() + "\n"
+
+
+def _is_table_list(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)

@@ -1,0 +1,178 @@
+"""BobRule (eq. 5) against values worked out by hand for 1-4 agents."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from behavior_helpers import assert_batch_equivalent, make_table, make_view
+from numpy.testing import assert_allclose
+
+from behaviors.base import SwarmTable
+from behaviors.bob_rule import BobRule
+
+# speed_scale 1 and a cap far away: the wish velocity is v_i of eq. (5) itself.
+P0 = 10.0
+
+
+def rule(**kwargs: object) -> BobRule:
+    params: dict[str, object] = {"p0": P0, "speed_scale": 1.0, "max_speed": 100.0}
+    params.update(kwargs)
+    return BobRule(**params)  # type: ignore[arg-type]
+
+
+def test_two_agents_at_twice_p0_attract_with_factor_three_quarters() -> None:
+    view = make_view(make_table([[0.0, 0.0], [20.0, 0.0]]))
+    wish = rule(H=0).step(view)
+    # f = 1 - 10^2 / 20^2 = 0.75, N = 1, gamma = +-(1, 0).
+    assert_allclose(wish.velocity, [[0.75, 0.0], [-0.75, 0.0]], atol=1e-12)
+    assert np.all(np.isnan(wish.heading))
+
+
+@pytest.mark.parametrize("other", [[10.0, 0.0], [6.0, 8.0]])
+def test_pair_term_is_exactly_zero_at_p0(other: list[float]) -> None:
+    view = make_view(make_table([[0.0, 0.0], other]))
+    assert np.array_equal(rule(H=0).step(view).velocity, np.zeros((2, 2)))
+
+
+def test_aggregation_repels_inside_p0_and_averages_over_neighbours() -> None:
+    # Agent 0 hears (20, 0): f = 1 - 100/400 = 0.75 along (1, 0),
+    # and (0, 5): f = 1 - 100/25 = -3 along (0, 1); N = 2 -> (0.75, -3) / 2.
+    # Headings are set but H = 0 ignores them.
+    table = make_table([[0.0, 0.0], [20.0, 0.0], [0.0, 5.0]], headings=[0.3, 1.0, -2.0])
+    wish = rule(H=0).step(make_view(table, pairs=[(0, 1), (0, 2)], rows=[0]))
+    assert_allclose(wish.velocity, [[0.375, -1.5]], atol=1e-12)
+
+
+def test_h1_outside_p0_is_pure_goal_plus_own_heading() -> None:
+    # Goal (0, 30): beta = (0, 1). Neighbour at 20 m > p0: f = min(0, 0.75) = 0 and it is
+    # not in R_0, so only theta_0 = (1, 0) counts, divided by N = 1.
+    table = make_table([[0.0, 0.0], [20.0, 0.0]], headings=[0.0, math.pi / 2])
+    wish = rule(H=1, goal=(0.0, 30.0)).step(make_view(table, rows=[0], pairs=[(0, 1)]))
+    assert_allclose(wish.velocity, [[1.0, 1.0]], atol=1e-12)
+
+
+def test_h1_repels_inside_p0_and_consensus_runs_over_r_i_plus_self() -> None:
+    # Agent 0 at the origin, heading 0, goal (0, -40): beta = (0, -1). It hears 3 agents:
+    #   (5, 0), heading pi/2: d = 5, f = min(0, 1 - 100/25) = -3, in R_0;
+    #   (0, 20), heading pi: d = 20, f = 0, not in R_0;
+    #   (-30, 0), heading pi/2: d = 30, f = 0, not in R_0.
+    # pair term = (-3, 0) / 3 = (-1, 0); consensus = ((1, 0) + (0, 1)) / 3.
+    # v = (0, -1) + (-1, 0) + (1/3, 1/3) = (-2/3, -2/3).
+    table = make_table(
+        [[0.0, 0.0], [5.0, 0.0], [0.0, 20.0], [-30.0, 0.0]],
+        headings=[0.0, math.pi / 2, math.pi, math.pi / 2],
+    )
+    view = make_view(table, rows=[0], pairs=[(0, 1), (0, 2), (0, 3)])
+    wish = rule(H=1, goal=(0.0, -40.0)).step(view)
+    assert_allclose(wish.velocity, [[-2.0 / 3.0, -2.0 / 3.0]], atol=1e-12)
+
+
+def test_speed_scale_and_cap() -> None:
+    view = make_view(make_table([[0.0, 0.0], [20.0, 0.0]]))
+    # v = (0.75, 0) scaled by 0.5 m/s -> 0.375 m/s, under the 0.6 m/s cap.
+    assert_allclose(BobRule(p0=P0, speed_scale=0.5, max_speed=0.6).step(view).velocity[0], [0.375, 0.0])
+    # Capped at 0.3 m/s.
+    assert_allclose(BobRule(p0=P0, speed_scale=0.5, max_speed=0.3).step(view).velocity[0], [0.3, 0.0])
+
+
+def test_lone_agent_has_only_the_goal_term() -> None:
+    view = make_view(make_table([[0.0, 0.0]], headings=[1.0]), pairs=[])
+    # Goal (3, 4) from the origin: beta = (0.6, 0.8); no pair or consensus term, no NaN.
+    assert_allclose(rule(H=1, goal=(3.0, 4.0)).step(view).velocity, [[0.6, 0.8]], atol=1e-12)
+    assert np.array_equal(rule(H=0).step(view).velocity, [[0.0, 0.0]])
+
+
+def test_coincident_agents_give_no_nan() -> None:
+    view = make_view(make_table([[1.0, 1.0], [1.0, 1.0]]))
+    assert np.array_equal(rule(H=0).step(view).velocity, np.zeros((2, 2)))
+
+
+def leader_table(memory_goal: list[list[float]]) -> SwarmTable:
+    # ids 7 (leader, origin, heading pi), 8 at (30, 40) heading 0, 9 at (30, -40) heading pi/2.
+    return make_table(
+        [[0.0, 0.0], [30.0, 40.0], [30.0, -40.0]],
+        headings=[math.pi, 0.0, math.pi / 2],
+        ids=[7, 8, 9],
+        memory={"goal": np.asarray(memory_goal, dtype=float)},
+    )
+
+
+def test_leader_follower_takes_the_leaders_position_by_id() -> None:
+    nan = math.nan
+    table = leader_table([[100.0, 0.0], [nan, nan], [nan, nan]])
+    wish = rule(H=1, leader_id=7).step(make_view(table))
+    # Follower 8: beta = (0 - 30, 0 - 40) / 50 = (-0.6, -0.8); both others are beyond p0
+    # (50 m and 80 m): f = 0 and R empty; consensus = theta_8 / N = (1, 0) / 2.
+    assert_allclose(wish.velocity[1], [-0.1, -0.8], atol=1e-12)
+    # Follower 9: beta = (-30, 40) / 50 = (-0.6, 0.8); consensus (0, 1) / 2.
+    assert_allclose(wish.velocity[2], [-0.6, 1.3], atol=1e-12)
+    # The leader ignores its stale remembered goal (100, 0) and is not its own goal:
+    # only its consensus term (-1, 0) / 2 remains.
+    assert_allclose(wish.velocity[0], [-0.5, 0.0], atol=1e-12)
+    assert_allclose(wish.memory["goal"][1:], [[0.0, 0.0], [0.0, 0.0]])
+
+
+def test_leader_follower_remembers_the_leader_when_it_drops_out() -> None:
+    nan = math.nan
+    # Step 1: 8 hears the leader 7; 9 hears only 8 (the leader is in the table, not heard).
+    table = leader_table([[nan, nan], [nan, nan], [nan, nan]])
+    first = rule(H=1, leader_id=7).step(make_view(table, pairs=[(0, 0), (0, 2), (1, 1)], rows=[1, 2]))
+    assert_allclose(first.memory["goal"][0], [0.0, 0.0])
+    assert np.all(np.isnan(first.memory["goal"][1]))
+    # 9 has no goal: only the consensus over itself, (0, 1) / 1 (8 is 80 m away: f = 0).
+    assert_allclose(first.velocity[1], [0.0, 1.0], atol=1e-12)
+
+    # Step 2: the leader is gone; 8 keeps going to (0, 0), remembered.
+    table2 = make_table(
+        [[30.0, 40.0], [30.0, -40.0]],
+        headings=[0.0, math.pi / 2],
+        ids=[8, 9],
+        memory={"goal": first.memory["goal"]},
+    )
+    second = rule(H=1, leader_id=7).step(make_view(table2))
+    # 8: beta = (-0.6, -0.8), consensus (1, 0) / 1 -> (0.4, -0.8).
+    assert_allclose(second.velocity[0], [0.4, -0.8], atol=1e-12)
+    assert_allclose(second.memory["goal"][0], [0.0, 0.0])
+    assert_allclose(second.velocity[1], [0.0, 1.0], atol=1e-12)
+
+
+def test_leader_never_heard_means_no_goal_term_even_without_memory_field() -> None:
+    table = make_table([[0.0, 0.0], [20.0, 0.0]], headings=[0.0, 0.0], ids=[1, 2])
+    wish = rule(H=1, leader_id=5).step(make_view(table))
+    # Only consensus theta_i / 1 = (1, 0); the pair is beyond p0.
+    assert_allclose(wish.velocity, [[1.0, 0.0], [1.0, 0.0]], atol=1e-12)
+
+
+SWARM = [[0.0, 0.0], [5.0, 1.0], [12.0, -3.0], [4.0, 9.0]]
+SWARM_PAIRS = [(0, 1), (0, 2), (0, 3), (1, 0), (1, 2), (2, 1), (3, 0), (3, 1)]
+
+
+@pytest.mark.parametrize(
+    "behavior",
+    [
+        rule(H=0),
+        rule(H=1, goal=(30.0, 30.0)),
+        rule(H=1, leader_id=12),
+        BobRule(p0=6.0, H=1, goal=(-5.0, 2.0)),
+    ],
+)
+def test_batch_equals_one_vessel_at_a_time(behavior: BobRule) -> None:
+    nan = math.nan
+    table = make_table(
+        SWARM,
+        headings=[0.1, 2.0, -1.0, 3.0],
+        ids=[11, 12, 13, 14],
+        memory={"goal": np.array([[nan, nan], [nan, nan], [1.0, 2.0], [3.0, -4.0]])},
+    )
+    wish = assert_batch_equivalent(behavior, make_view(table, pairs=SWARM_PAIRS))
+    assert np.all(np.isfinite(wish.velocity))
+    assert np.any(wish.velocity != 0.0)
+
+
+def test_invalid_parameters() -> None:
+    with pytest.raises(ValueError):
+        BobRule(H=2)
+    with pytest.raises(ValueError):
+        BobRule(H=1, goal=(0.0, 0.0), leader_id=3)
