@@ -5,7 +5,7 @@ neighbours; perimeter defence maximizes the distance to them, so the agent
 moves along its negative: away from each neighbour with weight 1 / distance,
 closer neighbours weighing more. Obstacle points from the range finders may be
 added to the sum like neighbours so that walls repel too (as marabunta's area
-coverage does).
+coverage does), their push fading to zero at the sensors' range.
 """
 
 from __future__ import annotations
@@ -26,14 +26,20 @@ def repulsion(view: View) -> FloatArray:
     return view.sum_pairs(d * weight[:, None])
 
 
-def obstacle_repulsion(offsets: FloatArray) -> FloatArray:
-    """(n, 2) the same sum over (n, K, 2) obstacle offsets (NaN = no echo), 1/m."""
+def obstacle_repulsion(offsets: FloatArray, sensing_range_m: float) -> FloatArray:
+    """(n, 2) repulsion from (n, K, 2) obstacle offsets (NaN = no echo), 1/m.
+
+    Each echo at distance d pushes away with strength 1/d - 1/R, R the sensing
+    range: like a neighbour up close, but fading to zero at the range so that
+    an echo appearing at the edge of the sensor's reach does not jolt the agent.
+    """
     if offsets.shape[1] == 0:
         return np.zeros((offsets.shape[0], 2))
-    d2 = np.einsum("nkc,nkc->nk", offsets, offsets)
-    seen = np.isfinite(d2) & (d2 > 0.0)
-    weight = np.divide(-1.0, d2, out=np.zeros_like(d2), where=seen)
-    return np.einsum("nkc,nk->nc", np.where(seen[..., None], offsets, 0.0), weight)
+    d = np.sqrt(np.einsum("nkc,nkc->nk", offsets, offsets))
+    seen = np.isfinite(d) & (d > 0.0) & (d < sensing_range_m)
+    strength = np.divide(1.0, d, out=np.zeros_like(d), where=seen) - np.where(seen, 1.0 / sensing_range_m, 0.0)
+    direction = np.divide(offsets, d[..., None], out=np.zeros_like(offsets), where=seen[..., None])
+    return -np.einsum("nkc,nk->nc", direction, strength)
 
 
 @dataclass
@@ -46,6 +52,8 @@ class PerimeterDefense(Behavior):
     dead_band: repulsion magnitude (1/m) below which the agent stops.
     obstacle_weight: weight of range-finder echoes relative to neighbours
         (0 ignores obstacles).
+    obstacle_range_m: range of the range finders, m; an echo's push fades to
+        zero there.
     """
 
     name: ClassVar[str] = "perimeter-defense"
@@ -53,12 +61,15 @@ class PerimeterDefense(Behavior):
     full_speed_at: float = 1.0
     dead_band: float = 0.02
     obstacle_weight: float = 1.0
+    obstacle_range_m: float = 1.5
 
     def direction(self, view: View) -> FloatArray:
         """(n, 2) the un-normalized direction of eq. (3), negated, plus obstacles, 1/m."""
         force = repulsion(view)
         if self.obstacle_weight:
-            force += self.obstacle_weight * obstacle_repulsion(view.senses.obstacles[view.rows])
+            force += self.obstacle_weight * obstacle_repulsion(
+                view.senses.obstacles[view.rows], self.obstacle_range_m
+            )
         return force
 
     def step(self, view: View) -> Wish:

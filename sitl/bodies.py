@@ -20,6 +20,8 @@ BUOY, EBOT = 0, 1
 BODY_KINDS = {"buoy": BUOY, "ebot": EBOT}
 
 EBOT_SONAR_ANGLES_RAD = np.radians([0.0, 60.0, 120.0, 180.0, -120.0, -60.0])
+# A sonar returns the nearest echo inside its cone (+-30 degrees), sampled by these rays.
+SONAR_CONE_OFFSETS_RAD = np.radians([-30.0, -15.0, 0.0, 15.0, 30.0])
 EBOT_LIGHT_ANGLES_RAD = np.radians([45.0, -45.0])  # left, right
 
 
@@ -122,23 +124,25 @@ class KinematicBodies:
     def range_finders(self, rows: NDArray[np.int_], world: World) -> FloatArray:
         """(len(rows), 6, 2) offsets (m, world frame, from the centre) to what each eBot sonar hits.
 
-        Walls and other active robots are seen within the sensor's range; NaN
-        where a sonar sees nothing.
+        Each sonar reports the nearest wall or other active robot inside its
+        cone, placed on its axis (a sonar measures range, not bearing); NaN
+        where nothing is within range.
         """
         n = rows.shape[0]
         spec = BODY_SPECS[EBOT]
-        k = EBOT_SONAR_ANGLES_RAD.shape[0]
-        angles = self.heading[rows][:, None] + EBOT_SONAR_ANGLES_RAD[None]
-        directions = np.stack((np.cos(angles), np.sin(angles)), axis=-1).reshape(-1, 2)
-        origins = np.repeat(self.position[rows], k, axis=0)
+        k, c = EBOT_SONAR_ANGLES_RAD.shape[0], SONAR_CONE_OFFSETS_RAD.shape[0]
+        axes = self.heading[rows][:, None] + EBOT_SONAR_ANGLES_RAD[None]  # (n, k)
+        angles = (axes[..., None] + SONAR_CONE_OFFSETS_RAD).reshape(-1)  # (n * k * c,)
+        directions = np.column_stack((np.cos(angles), np.sin(angles)))
+        origins = np.repeat(self.position[rows], k * c, axis=0)
         distance = ray_segment_distance(origins, directions, world.walls)
-        distance = np.minimum(distance, self._robot_hits(rows, directions, spec.range_max_m))
+        distance = np.minimum(distance, self._robot_hits(rows, directions, spec.range_max_m, k * c))
+        distance = distance.reshape(n, k, c).min(axis=2)
         distance[distance > spec.range_max_m] = np.nan
-        return (directions * distance[:, None]).reshape(n, k, 2)
+        return np.stack((np.cos(axes), np.sin(axes)), axis=-1) * distance[..., None]
 
-    def _robot_hits(self, rows: NDArray[np.int_], directions: FloatArray, max_range: float) -> FloatArray:
-        """Distance along each sonar ray to the nearest other active robot's disc."""
-        k = EBOT_SONAR_ANGLES_RAD.shape[0]
+    def _robot_hits(self, rows: NDArray[np.int_], directions: FloatArray, max_range: float, k: int) -> FloatArray:
+        """Distance along each of the k rays per sensing robot to the nearest other active robot's disc."""
         result = np.full(rows.shape[0] * k, np.inf)
         others = np.flatnonzero(self.active)
         if others.size < 2:

@@ -197,10 +197,16 @@ class LockstepFleet:
         pool = self.active.copy()
         if event.group is not None:
             pool &= self.group_of == self.group_names.index(event.group)
+        if event.box is not None:
+            p = self.bodies.position
+            lo, hi = event.box.min, event.box.max
+            pool &= (p[:, 0] >= lo[0]) & (p[:, 0] <= hi[0]) & (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1])
+            return np.flatnonzero(pool)
         candidates = np.flatnonzero(pool)
-        if event.count > candidates.size:
-            raise ScenarioError(f"event at t={event.t_s} s wants {event.count} agents, only {candidates.size}")
-        return np.sort(self.rng.choice(candidates, size=event.count, replace=False))
+        count = event.count if event.count is not None else max(1, round(event.fraction * candidates.size))
+        if count > candidates.size:
+            raise ScenarioError(f"event at t={event.t_s} s wants {count} agents, only {candidates.size} are active")
+        return np.sort(self.rng.choice(candidates, size=count, replace=False))
 
     def inside_rooms(self) -> NDArray[np.bool_]:
         return self.world.inside_rooms(self.bodies.position)

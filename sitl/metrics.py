@@ -102,6 +102,7 @@ def heading_consensus_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, 
 
 
 def _room_grid(fleet: LockstepFleet, spacing_m: float) -> FloatArray:
+    """Points (m) every `spacing_m` inside the first room."""
     room = fleet.world.rooms[0]
     lo, hi = room.min(axis=0), room.max(axis=0)
     xs = np.arange(lo[0] + spacing_m / 2, hi[0], spacing_m)
@@ -110,28 +111,44 @@ def _room_grid(fleet: LockstepFleet, spacing_m: float) -> FloatArray:
     return grid[points_in_polygon(grid, room)]
 
 
+def _perimeter_points(fleet: LockstepFleet, spacing_m: float) -> FloatArray:
+    """Points (m) every `spacing_m` along the first room's walls."""
+    room = fleet.world.rooms[0]
+    points = []
+    for a, b in zip(room, np.roll(room, -1, axis=0), strict=True):
+        steps = max(1, int(np.ceil(np.hypot(*(b - a)) / spacing_m)))
+        points.append(a + (b - a) * (np.arange(steps) / steps)[:, None])
+    return np.concatenate(points)
+
+
 def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
-    """Coverage of the room against time, and re-spreading after robots are removed."""
-    cover_radius = p.get("cover_radius_m", 1.5)
-    min_final_coverage = p.get("min_final_coverage", 0.6)
+    """How well the robots guard the room's perimeter, and how they close a gap after removals.
+
+    coverage: fraction of the walls within `cover_radius_m` of a robot.
+    largest gap: radius (m) of the largest circle in the room with no robot.
+    """
+    cover_radius = p.get("cover_radius_m", 2.5)
+    min_coverage = p.get("min_coverage", 0.75)
+    min_gap_closed = p.get("min_gap_closed", 0.3)
     grid = _room_grid(fleet, p.get("grid_m", 0.1))
+    perimeter = _perimeter_points(fleet, p.get("grid_m", 0.1))
     times = rec.times()
-    gap, coverage, nn, inside = [], [], [], []
+    gap, coverage, inside = [], [], []
     for f in rec.frames:
-        distance, _ = cKDTree(f.position).query(grid)
-        gap.append(distance.max())
-        coverage.append(np.mean(distance <= cover_radius))
-        pair, _ = cKDTree(f.position).query(f.position, k=2) if len(f.position) > 1 else (np.zeros((1, 2)), None)
-        nn.append(pair[:, 1].mean())
+        tree = cKDTree(f.position)
+        gap.append(tree.query(grid)[0].max())
+        coverage.append(np.mean(tree.query(perimeter)[0] <= cover_radius))
         inside.append(bool(fleet.world.inside_rooms(f.position).all()))
     gap, coverage = np.array(gap), np.array(coverage)
+    removals = [e for e in fleet.events_log if e["action"] == "remove"]
+    k_before = _frame_at(rec, removals[0]["t_s"]) if removals else len(rec.frames) - 1
     result: dict = {
         "agents": int(fleet.n),
         "cover_radius_m": cover_radius,
-        "initial_coverage": float(coverage[0]),
-        "final_coverage": float(coverage[-1]),
+        "initial_perimeter_coverage": float(coverage[0]),
+        "spread_perimeter_coverage": float(coverage[k_before]),
+        "final_perimeter_coverage": float(coverage[-1]),
         "final_largest_gap_m": float(gap[-1]),
-        "final_mean_nearest_neighbor_m": float(nn[-1]),
         "always_inside_room": bool(all(inside)),
         "wall_contacts": int(fleet.bodies.wall_contacts),
         "coverage": {"t_s": times.tolist(), "value": np.round(coverage, 4).tolist()},
@@ -139,25 +156,21 @@ def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, 
     }
     criteria = {
         "always_inside_room": result["always_inside_room"],
-        f"final_coverage_at_least_{min_final_coverage:g}": result["final_coverage"] >= min_final_coverage,
-        "coverage_grew": result["final_coverage"] > result["initial_coverage"],
+        f"spread_coverage_at_least_{min_coverage:g}": result["spread_perimeter_coverage"] >= min_coverage,
     }
-    removals = [e for e in fleet.events_log if e["action"] == "remove"]
-    if removals:
-        t_r = removals[0]["t_s"]
-        k_before = _frame_at(rec, t_r)  # frames at t_r show the state before that step's events
-        k_after = min(k_before + 1, len(rec.frames) - 1)
+    if removals and k_before + 1 < len(rec.frames):
+        # Frames at the removal time show the state before that step's events.
+        k_after = k_before + 1
+        opened = gap[k_after] - gap[k_before]
+        closed = gap[k_after] - gap[-1]
         result.update(
             removed_agents=[a for e in removals for a in e["agents"]],
-            removal_t_s=t_r,
-            coverage_before_removal=float(coverage[k_before]),
-            coverage_after_removal=float(coverage[k_after]),
+            removal_t_s=removals[0]["t_s"],
             largest_gap_before_removal_m=float(gap[k_before]),
             largest_gap_after_removal_m=float(gap[k_after]),
+            gap_closed_fraction=float(closed / opened) if opened > 0 else None,
         )
-        # Re-spread: the swarm wins back at least half of the coverage the removal cost.
-        lost = coverage[k_before] - coverage[k_after]
-        criteria["respread_after_removal"] = bool(coverage[-1] >= coverage[k_after] + 0.5 * lost)
+        criteria[f"respread_closes_{min_gap_closed:g}_of_gap"] = bool(opened > 0 and closed >= min_gap_closed * opened)
     result["criteria"] = criteria
     return _finish(result)
 

@@ -84,21 +84,24 @@ class Group(BehaviorChoice):
 class Event(Model):
     """Something scheduled at `t_s`: agents change behaviour, or are removed.
 
-    The agents are `agents` (indices), or `count` of them drawn with the seed
-    from `group` (or from everyone).
+    The agents are `agents` (indices), or `count` of them (or a `fraction`,
+    rounded, at least one) drawn with the seed from `group` (or from everyone
+    still active), or every active agent inside `box` (e.g. to open a gap).
     """
 
     t_s: float = Field(ge=0)
     action: Literal["set-behavior", "remove"]
     agents: list[int] | None = None
     count: int | None = Field(default=None, ge=1)
+    fraction: float | None = Field(default=None, gt=0, le=1)
+    box: Box | None = None
     group: str | None = None
     choice: BehaviorChoice | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> Event:
-        if (self.agents is None) == (self.count is None):
-            raise ValueError("give exactly one of 'agents' or 'count'")
+        if sum(x is not None for x in (self.agents, self.count, self.fraction, self.box)) != 1:
+            raise ValueError("give exactly one of 'agents', 'count', 'fraction' or 'box'")
         if self.action == "set-behavior" and self.choice is None:
             raise ValueError("'set-behavior' needs a 'choice' table with a 'behavior'")
         return self
