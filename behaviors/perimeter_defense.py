@@ -67,9 +67,7 @@ class PerimeterDefense(Behavior):
         """(n, 2) the un-normalized direction of eq. (3), negated, plus obstacles, 1/m."""
         force = repulsion(view)
         if self.obstacle_weight:
-            force += self.obstacle_weight * obstacle_repulsion(
-                view.senses.obstacles[view.rows], self.obstacle_range_m
-            )
+            force += self.obstacle_weight * obstacle_repulsion(view.senses.obstacles[view.rows], self.obstacle_range_m)
         return force
 
     def step(self, view: View) -> Wish:

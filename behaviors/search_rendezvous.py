@@ -1,7 +1,7 @@
 """Search and rendezvous: spread out until someone sees the light, then all go there.
 
-Phase one is perimeter defence (eq. 3) with a slow exploring drift so that a
-settled swarm keeps sweeping. An agent whose light sensors read above
+Phase one is perimeter defence (eq. 3); once settled, agents patrol, drifting
+across the spreading force so that the swarm circulates along the perimeter. An agent whose light sensors read above
 `detect_threshold` records a target: its own position and the reading there.
 Targets travel in the broadcast state; every agent adopts the brightest target
 it hears (relay), so the word spreads hop by hop. An agent that currently reads
@@ -96,11 +96,20 @@ class SearchRendezvous(Behavior):
         return Wish(velocity, heading, {"target": target, "target_light": best})
 
     def _search(self, view: View) -> FloatArray:
-        """Perimeter defence, never slower than `explore_speed` along the heading."""
+        """Perimeter defence, and once settled, patrol: drift at `explore_speed` across the spreading force.
+
+        A settled agent moves perpendicular (counter-clockwise) to the net
+        push of its neighbours and the walls, so the spread swarm circulates
+        along the perimeter and a lone agent follows the walls; with no push
+        at all it keeps going along its heading.
+        """
+        force = self.spread.direction(view)
         velocity = self.spread.step(view).velocity
         speed = np.hypot(velocity[:, 0], velocity[:, 1])
         slow = speed < self.explore_speed
-        drift = self.explore_speed * heading_vectors(view.heading)
+        pushed = np.hypot(force[:, 0], force[:, 1]) > self.spread.dead_band
+        across = unit(force) @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # rotate +90 degrees
+        drift = np.where(pushed[:, None], across, heading_vectors(view.heading)) * self.explore_speed
         velocity[slow] = limit_speed(velocity[slow] + drift[slow], self.max_speed)
         return velocity
 

@@ -20,8 +20,8 @@ BUOY, EBOT = 0, 1
 BODY_KINDS = {"buoy": BUOY, "ebot": EBOT}
 
 EBOT_SONAR_ANGLES_RAD = np.radians([0.0, 60.0, 120.0, 180.0, -120.0, -60.0])
-# A sonar returns the nearest echo inside its cone (+-30 degrees), sampled by these rays.
-SONAR_CONE_OFFSETS_RAD = np.radians([-30.0, -15.0, 0.0, 15.0, 30.0])
+# A sonar returns the nearest echo inside its cone (about +-30 degrees), sampled by these rays.
+SONAR_CONE_OFFSETS_RAD = np.radians([-27.0, -13.5, 0.0, 13.5, 27.0])  # no ray shared by two sonars
 EBOT_LIGHT_ANGLES_RAD = np.radians([45.0, -45.0])  # left, right
 
 
@@ -78,8 +78,9 @@ class KinematicBodies:
         new_heading[~self.active] = self.heading[~self.active]
         proposed = self.position + new_velocity * dt
         if world.walls.shape[0]:
-            proposed, contact = world.push_out_of_walls(proposed, self.radius)
-            self.wall_contacts += int(np.count_nonzero(contact & self.active))
+            moving = self.active
+            proposed[moving], contact = world.push_out_of_walls(proposed[moving], self.radius[moving])
+            self.wall_contacts += int(np.count_nonzero(contact))
             new_velocity = (proposed - self.position) / dt
         self.position = proposed
         self.velocity = new_velocity

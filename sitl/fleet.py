@@ -150,7 +150,7 @@ class LockstepFleet:
         agent that broadcasts at the end of its update.
         """
         if self.medium.due(self.t):
-            self.medium.broadcast(self.t, self.active)
+            self.medium.broadcast(self.t, self.active, latency_s=self.scenario.dt_s)
         self.bodies.apply(wish.velocity, wish.heading, self.scenario.dt_s, self.world)
         self.step_index += 1
         self.t = self.step_index * self.scenario.dt_s

@@ -65,8 +65,13 @@ class BroadcastMedium:
         """Whether a broadcast round is due at time t (s)."""
         return t + 1e-9 >= self.next_broadcast_s
 
-    def broadcast(self, t: float, active: NDArray[np.bool_]) -> None:
-        """Every active agent sends its current state (table rows [0, N)) at t (s); those in range hear it."""
+    def broadcast(self, t: float, active: NDArray[np.bool_], latency_s: float = 0.0) -> None:
+        """Every active agent sends its current state (table rows [0, N)) at t (s); those in range hear it.
+
+        A message arrives `latency_s` after it is sent; it is heard, and ages,
+        from then on (the lockstep fleet passes one step: what is sent during
+        step k is read at step k + 1).
+        """
         self.next_broadcast_s += self.period_s * max(1.0, np.floor((t - self.next_broadcast_s) / self.period_s) + 1)
         senders = np.flatnonzero(active)
         rows = self.n + self._slot * self.n + senders
@@ -87,11 +92,11 @@ class BroadcastMedium:
         new_sender = np.concatenate((b, a))
         new_message = np.concatenate((rows[pairs[:, 1]], rows[pairs[:, 0]]))
         self.delivered += new_listener.size
-        self._merge(t, new_listener, new_sender, new_message)
+        self._merge(t + latency_s, new_listener, new_sender, new_message)
 
     def _merge(self, t: float, listener: IntArray, sender: IntArray, message: IntArray) -> None:
         """Newly heard messages replace older ones from the same sender; stale ones expire."""
-        alive = t - self.heard_at <= self.expiry_s - 1e-9
+        alive = t - self.heard_at <= self.expiry_s + 1e-9
         old_listener, old_sender = self.listener[alive], self.sender[alive]
         old_message, old_time = self.message[alive], self.heard_at[alive]
         if old_listener.size:
@@ -103,12 +108,13 @@ class BroadcastMedium:
         self.sender = np.concatenate((sender, old_sender))
         self.message = np.concatenate((message, old_message))
         self.heard_at = np.concatenate((np.full(listener.size, t), old_time))
-        order = np.argsort(self.listener, kind="stable")
+        # Listener, then sender: the order an agent's neighbour table has, so sums agree to the bit.
+        order = np.lexsort((self.sender, self.listener))
         self.listener, self.sender = self.listener[order], self.sender[order]
         self.message, self.heard_at = self.message[order], self.heard_at[order]
 
     def heard(self, t: float, listening: NDArray[np.bool_]) -> tuple[IntArray, IntArray, FloatArray]:
         """(listener, table row of the message, age s) of every unexpired message heard."""
         age = t - self.heard_at
-        keep = (age <= self.expiry_s + 1e-9) & listening[self.listener]
+        keep = (age >= -1e-9) & (age <= self.expiry_s + 1e-9) & listening[self.listener]
         return self.listener[keep], self.message[keep], age[keep]

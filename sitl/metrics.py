@@ -81,11 +81,13 @@ def heading_consensus_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, 
         leader = event["agents"][0]
         before = rec.frames[_frame_at(rec, event["t_s"])]
         swarm_heading = circular_mean(before.heading)
-        final = rec.frames[-1]
-        held = float(final.heading[list(final.agents).index(leader)])
-        deviation = np.array(
-            [angle_diff_deg(f.heading, f.heading[list(f.agents).index(leader)]).max() for f in rec.frames]
-        )
+        leader_t, leader_h = rec.agent_series(leader, "heading")
+        held = float(leader_h[-1])
+        # Deviation from the leader while it is present; after it is gone there is nothing to follow.
+        deviation = np.full(times.size, np.inf)
+        present = np.isin(times, leader_t)
+        frames = [f for f, p in zip(rec.frames, present, strict=True) if p]
+        deviation[present] = [angle_diff_deg(f.heading, h).max() for f, h in zip(frames, leader_h, strict=True)]
         result.update(
             leader=leader,
             leader_event_t_s=event["t_s"],

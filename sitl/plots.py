@@ -28,15 +28,16 @@ def trajectories(fleet: LockstepFleet, rec: Recorder, path: Path) -> None:
     ids = sorted({int(a) for f in rec.frames for a in f.agents})
     cmap = plt.get_cmap("tab20")
     for k, agent in enumerate(ids):
-        pts = np.array([f.position[list(f.agents).index(agent)] for f in rec.frames if agent in f.agents])
+        _, pts = rec.agent_series(agent, "position")
         color = cmap(k % 20)
         ax.plot(pts[:, 0], pts[:, 1], color=color, lw=0.8, alpha=0.8)
         ax.plot(*pts[0], "o", color=color, ms=4)
-        ax.plot(*pts[-1], "s", color=color, ms=5, markeredgecolor="black")
+        removed = agent not in rec.frames[-1].agents
+        ax.plot(*pts[-1], "x" if removed else "s", color=color, ms=7 if removed else 5, markeredgecolor="black")
     ax.set_aspect("equal")
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
-    ax.set_title(f"{fleet.scenario.name}: trajectories ({fleet.n} agents, {rec.frames[-1].t:.0f} s)")
+    ax.set_title(f"{fleet.scenario.name}: trajectories ({fleet.n} agents, {rec.frames[-1].t:.0f} s; x = removed)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -47,10 +48,10 @@ def headings(fleet: LockstepFleet, rec: Recorder, metrics: dict, path: Path) -> 
     times = rec.times()
     fig, (ax, zoom) = plt.subplots(1, 2, figsize=(12, 4.5), gridspec_kw={"width_ratios": [2, 1]})
     for agent in range(fleet.n):
-        h = np.degrees([f.heading[list(f.agents).index(agent)] for f in rec.frames])
+        t, h = rec.agent_series(agent, "heading")
         style = {"lw": 2.5, "color": "red"} if agent == metrics.get("leader") else {"lw": 0.9}
         for axis in (ax, zoom):
-            axis.plot(times, h, **style)
+            axis.plot(t, np.degrees(h), **style)
     if "leader_event_t_s" in metrics:
         ax.axvline(metrics["leader_event_t_s"], color="gray", ls="--", label="leader holds its heading")
         ax.legend(loc="best")

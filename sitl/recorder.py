@@ -62,3 +62,13 @@ class Recorder:
 
     def times(self) -> FloatArray:
         return np.array([f.t for f in self.frames])
+
+    def agent_series(self, agent: int, attribute: str) -> tuple[FloatArray, FloatArray]:
+        """(times s, values) of one agent's `position`, `heading` or `velocity` over the frames it was active."""
+        times, values = [], []
+        for f in self.frames:
+            row = np.searchsorted(f.agents, agent)
+            if row < f.agents.size and f.agents[row] == agent:
+                times.append(f.t)
+                values.append(getattr(f, attribute)[row])
+        return np.array(times), np.array(values)

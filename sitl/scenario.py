@@ -18,6 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from behaviors.base import Behavior
+from behaviors.obstacle_avoidance import AvoidObstacles
 from behaviors.registry import behavior_class, with_avoidance
 
 PositiveFloat = Annotated[float, Field(gt=0)]
@@ -61,15 +62,30 @@ class BehaviorChoice(Model):
     avoid_obstacles: bool = False
     avoid_params: dict[str, float] = {}
 
+    @model_validator(mode="after")
+    def _buildable(self) -> BehaviorChoice:
+        self.build()
+        return self
+
     def build(self) -> Behavior:
-        """An instance of the chosen behaviour with validated parameters."""
-        cls = behavior_class(self.behavior)
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(self.params) - known)
-        if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown} for {self.behavior!r}; known: {sorted(known)}")
+        """An instance of the chosen behaviour with validated parameters (ValueError if not)."""
+        try:
+            cls = behavior_class(self.behavior)
+        except KeyError as error:
+            raise ValueError(error.args[0]) from None
+        _check_names(self.params, cls, f"parameter(s) for {self.behavior!r}")
         behavior = TypeAdapter(cls).validate_python(self.params)
-        return with_avoidance(behavior, **self.avoid_params) if self.avoid_obstacles else behavior
+        if not self.avoid_obstacles:
+            return behavior
+        _check_names(self.avoid_params, AvoidObstacles, "avoid_params")
+        return with_avoidance(behavior, **self.avoid_params)
+
+
+def _check_names(params: dict[str, Any], cls: type, what: str) -> None:
+    known = {f.name for f in dataclasses.fields(cls)} - {"inner"}
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise ValueError(f"unknown {what}: {unknown}; known: {sorted(known)}")
 
 
 class Group(BehaviorChoice):
@@ -175,11 +191,6 @@ class Scenario(Model):
         for k, event in enumerate(self.events):
             if event.group is not None and event.group not in names:
                 raise ValueError(f"events[{k}].group {event.group!r} is not a group ({names})")
-        for group in self.groups:
-            group.build()
-        for event in self.events:
-            if event.choice is not None:
-                event.choice.build()
         return self
 
     @property
@@ -240,7 +251,7 @@ def packaged_scenarios() -> dict[str, str]:
 def load_scenario(name_or_path: str | Path) -> Scenario:
     """A packaged scenario by name, or a TOML file by path."""
     path = Path(name_or_path)
-    if path.suffix == ".toml" or path.exists():
+    if path.suffix == ".toml" or path.is_file():
         if not path.is_file():
             raise ScenarioError(f"{path}: no such scenario file")
         text, source = path.read_bytes(), str(path)

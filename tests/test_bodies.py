@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from sitl.bodies import BUOY, EBOT, EBOT_LIGHT_ANGLES_RAD, EBOT_SONAR_ANGLES_RAD, KinematicBodies
+from sitl.bodies import (
+    BUOY,
+    EBOT,
+    EBOT_LIGHT_ANGLES_RAD,
+    EBOT_SONAR_ANGLES_RAD,
+    SONAR_CONE_OFFSETS_RAD,
+    KinematicBodies,
+)
 from sitl.world import World, polygon_segments
 
 DT = 0.1
@@ -60,13 +67,14 @@ def test_buoy_never_exceeds_speed_or_acceleration_limit() -> None:
         # A new random wish (up to 3 m/s, any direction) every 10 steps, including full reversals.
         if step % 10 == 0:
             wish = rng.uniform(-3.0, 3.0, (n, 2))
-        before_v, before_h = b.velocity.copy(), b.heading.copy()
+        before_p, before_v, before_h = b.position.copy(), b.velocity.copy(), b.heading.copy()
         b.apply(wish, np.full(n, math.nan), DT, OPEN)
         assert np.all(np.hypot(*b.velocity.T) <= BUOY_MAX_SPEED + 1e-12)
         assert np.all(np.hypot(*(b.velocity - before_v).T) <= BUOY_MAX_ACCEL * DT + 1e-12)
         # Turn rate 1.5 rad/s: at most 0.15 rad per step.
         assert np.all(np.abs(wrap(b.heading - before_h)) <= 1.5 * DT + 1e-12)
-        assert_allclose(b.position - (b.position - b.velocity * DT), b.velocity * DT)
+        # No walls: the body moves by exactly velocity * dt.
+        assert_allclose(b.position - before_p, b.velocity * DT, atol=1e-12)
 
 
 def test_buoy_decelerates_at_the_limit() -> None:
@@ -176,8 +184,10 @@ def test_ebot_explicit_heading_wish_turns_towards_it() -> None:
     b = bodies([EBOT], [[0.0, 0.0]], [0.0])
     for _ in range(10):
         b.apply(np.zeros((1, 2)), np.array([math.pi / 2]), DT, OPEN)
-    # 0.4 rad per step at most (|omega| <= 4 rad/s): 4 steps reach 1.6 > pi/2, no overshoot.
-    assert b.heading[0] == pytest.approx(math.pi / 2, abs=1e-12)
+    # omega = 4 * error, wheels -+omega * 0.05 capped at 0.2 m/s (|omega| <= 4 rad/s, 0.4 rad per step):
+    # errors pi/2 -> pi/2 - 0.4 -> pi/2 - 0.8 = 0.7708 (4 * 0.7708 * 0.05 = 0.154 < 0.2: no cap from here),
+    # then each step turns 0.4 * error, leaving 0.6 * error: after 8 more steps (pi/2 - 0.8) * 0.6^8.
+    assert math.pi / 2 - b.heading[0] == pytest.approx((math.pi / 2 - 0.8) * 0.6**8, abs=1e-12)
     assert_allclose(b.position, 0.0, atol=1e-15)
 
 
@@ -219,11 +229,6 @@ def test_inactive_robots_do_not_move_or_count() -> None:
     assert b.wall_contacts == 0
 
 
-@pytest.mark.xfail(
-    reason="KinematicBodies.apply pushes every body out of walls, inactive ones included: an inactive robot "
-    "within its radius of a wall moves and gets a non-zero velocity",
-    strict=True,
-)
 def test_inactive_robot_near_wall_does_not_move() -> None:
     world = room(2.0)
     b = bodies([EBOT], [[1.0, 0.05]], [0.0])  # 0.05 m from y = 0 (radius 0.08), e.g. placed there at the start
@@ -283,6 +288,27 @@ def test_other_robot_on_a_sonar_axis() -> None:
     # The disc (0.08 m at 0.5 m, 9.2 degrees) is 30+ degrees off every other sonar's rays: nothing else.
     assert np.all(np.isnan(np.delete(hits[0], 1, axis=0)))
     assert np.all(np.isnan(np.delete(hits[1], 0, axis=0)))
+
+
+def test_sonar_cone_reports_nearest_echo_on_its_axis() -> None:
+    # Cones of about +-30 degrees sampled at +-27, +-13.5 and 0: neighbouring sonars share no ray.
+    assert_allclose(np.degrees(SONAR_CONE_OFFSETS_RAD), [-27.0, -13.5, 0.0, 13.5, 27.0])
+    # A robot 0.5 m straight to the left (90 deg) is 3 degrees off the 87 degree edge ray of the 60 degree
+    # sonar and the 93 degree edge ray of the 120 degree one: miss distance 0.5 sin 3 = 0.0262 m < 0.08 m,
+    # echo at 0.5 cos 3 - sqrt(0.08^2 - 0.0262^2) = 0.4237 m, reported along each sonar's own axis.
+    b = bodies([EBOT, EBOT], [[0.0, 0.0], [0.0, 0.5]], [0.0, 0.0])
+    hits = b.range_finders(np.array([0]), OPEN)[0]
+    miss = 0.5 * math.sin(math.radians(3.0))
+    echo = 0.5 * math.cos(math.radians(3.0)) - math.sqrt(0.08**2 - miss**2)
+    for k in (1, 2):
+        assert_allclose(hits[k], echo * np.array([math.cos(sonar(k)), math.sin(sonar(k))]), atol=1e-12)
+    assert np.all(np.isnan(hits[[0, 3, 4, 5]]))
+    # The wall x = 1 seen by the 60 degree sonar: nearest along its 33 degree edge ray, 1 / cos 33 = 1.1924 m.
+    world = World(walls=np.array([[[1.0, -5.0], [1.0, 5.0]]]))
+    hits = bodies([EBOT], [[0.0, 0.0]], [0.0]).range_finders(np.array([0]), world)[0]
+    d = 1.0 / math.cos(math.radians(33.0))
+    assert_allclose(hits[1], d * np.array([math.cos(sonar(1)), math.sin(sonar(1))]), atol=1e-12)
+    assert_allclose(hits[5], d * np.array([math.cos(sonar(5)), math.sin(sonar(5))]), atol=1e-12)
 
 
 def test_buoy_seen_at_its_radius() -> None:
