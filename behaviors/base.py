@@ -117,8 +117,14 @@ class View:
 
     def offsets(self) -> FloatArray:
         """(M, 2) vector from each listener to the neighbour it hears, m."""
-        own = self.table.position[self.rows]
-        return self.table.position[self.pair_j] - own[self.pair_i]
+        # One-dimensional takes per column: several times faster than 2-D fancy indexing.
+        position = self.table.position
+        listener = np.take(self.rows, self.pair_i)
+        out = np.empty((self.pair_j.shape[0], 2))
+        for col in range(2):
+            column = position[:, col]
+            np.subtract(np.take(column, self.pair_j), np.take(column, listener), out=out[:, col])
+        return out
 
     def sum_pairs(self, values: FloatArray) -> FloatArray:
         """Sum per-pair values (M,) or (M, d) onto their listener: (n,) or (n, d)."""

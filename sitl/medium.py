@@ -52,12 +52,15 @@ class BroadcastMedium:
             memory={name: spec.empty(rows) for name, spec in memory_fields.items()},
         )
         self.sent_at_s = np.full(rows, -np.inf)
+        self.rounds_kept = rounds_kept
         self._slot = 0
+        self._round_slot: list[int] = []  # ring slot of the latest rounds, newest first
+        self._round_heard_s: list[float] = []  # when each of those rounds arrived, newest first
         self.next_broadcast_s = 0.0
-        self.listener = np.zeros(0, dtype=np.intp)
-        self.sender = np.zeros(0, dtype=np.intp)
-        self.message = np.zeros(0, dtype=np.intp)
-        self.heard_at = np.zeros(0)
+        # Heard messages, one per (listener, sender), encoded as sorted int64 keys
+        # ((listener * N + sender) * R + rank), rank = rounds since it was heard.
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._decode()
         self.sent = 0
         self.delivered = 0
 
@@ -75,7 +78,6 @@ class BroadcastMedium:
         self.next_broadcast_s += self.period_s * max(1.0, np.floor((t - self.next_broadcast_s) / self.period_s) + 1)
         senders = np.flatnonzero(active)
         rows = self.n + self._slot * self.n + senders
-        self._slot = (self._slot + 1) % (self.capacity // self.n)
         table = self.table
         self.sent_at_s[rows] = t
         table.ids[rows] = table.ids[senders]
@@ -88,33 +90,43 @@ class BroadcastMedium:
 
         pairs = cKDTree(table.position[senders]).query_pairs(self.range_m, output_type="ndarray")
         a, b = senders[pairs[:, 0]], senders[pairs[:, 1]]
-        new_listener = np.concatenate((a, b))
-        new_sender = np.concatenate((b, a))
-        new_message = np.concatenate((rows[pairs[:, 1]], rows[pairs[:, 0]]))
-        self.delivered += new_listener.size
-        self._merge(t + latency_s, new_listener, new_sender, new_message)
+        listener, sender = np.concatenate((a, b)), np.concatenate((b, a))
+        self.delivered += listener.size
+        self._round_slot.insert(0, self._slot)
+        self._round_heard_s.insert(0, t + latency_s)
+        del self._round_slot[self.rounds_kept :], self._round_heard_s[self.rounds_kept :]
+        self._slot = (self._slot + 1) % self.rounds_kept
+        self._merge(t + latency_s, listener, sender)
 
-    def _merge(self, t: float, listener: IntArray, sender: IntArray, message: IntArray) -> None:
-        """Newly heard messages replace older ones from the same sender; stale ones expire."""
-        alive = t - self.heard_at <= self.expiry_s + 1e-9
-        old_listener, old_sender = self.listener[alive], self.sender[alive]
-        old_message, old_time = self.message[alive], self.heard_at[alive]
-        if old_listener.size:
-            superseded = np.isin(old_listener * self.n + old_sender, listener * self.n + sender)
-            keep = ~superseded
-            old_listener, old_sender = old_listener[keep], old_sender[keep]
-            old_message, old_time = old_message[keep], old_time[keep]
-        self.listener = np.concatenate((listener, old_listener))
-        self.sender = np.concatenate((sender, old_sender))
-        self.message = np.concatenate((message, old_message))
-        self.heard_at = np.concatenate((np.full(listener.size, t), old_time))
-        # Listener, then sender: the order an agent's neighbour table has, so sums agree to the bit.
-        order = np.lexsort((self.sender, self.listener))
-        self.listener, self.sender = self.listener[order], self.sender[order]
-        self.message, self.heard_at = self.message[order], self.heard_at[order]
+    def _merge(self, now: float, listener: IntArray, sender: IntArray) -> None:
+        """Newly heard messages (rank 0) replace older ones from the same sender; stale ones expire."""
+        r = self.rounds_kept
+        old = self._keys + 1  # one round older
+        rank = old % r
+        ring_alive = rank != 0  # rank wrapped past the ring: that slot was just overwritten
+        heard = np.array(self._round_heard_s)[np.where(ring_alive, rank, 0)]
+        old = old[ring_alive & (now - heard <= self.expiry_s + 1e-9)]
+        new = (listener.astype(np.int64) * self.n + sender) * r
+        keys = np.sort(np.concatenate((new, old)))
+        pair = keys // r
+        first = np.ones(keys.size, dtype=bool)
+        first[1:] = pair[1:] != pair[:-1]  # newest (lowest rank) first within each pair
+        self._keys = keys[first]
+        self._decode()
+
+    def _decode(self) -> None:
+        """Unpack the keys into listener, sender, message row and arrival time arrays."""
+        r = self.rounds_kept
+        pair, rank = np.divmod(self._keys, r)
+        listener, sender = np.divmod(pair, self.n)
+        self.listener = listener.astype(np.intp)
+        self.sender = sender.astype(np.intp)
+        slots = np.array(self._round_slot or [0], dtype=np.intp)
+        self.message = self.n + slots[rank] * self.n + self.sender
+        self.heard_at = np.array(self._round_heard_s or [0.0])[rank]
 
     def heard(self, t: float, listening: NDArray[np.bool_]) -> tuple[IntArray, IntArray, FloatArray]:
-        """(listener, table row of the message, age s) of every unexpired message heard."""
+        """(listener, table row of the message, age s) of every unexpired message heard, by listener then sender."""
         age = t - self.heard_at
         keep = (age >= -1e-9) & (age <= self.expiry_s + 1e-9) & listening[self.listener]
         return self.listener[keep], self.message[keep], age[keep]
