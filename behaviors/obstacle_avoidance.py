@@ -3,7 +3,8 @@
 The inner behaviour decides where to go; this one only vetoes collisions. For
 each agent it takes the nearest range-finder echo. Within `safe_distance`, if
 the wish moves towards that echo, the towards component is removed (the
-velocity slides along the obstacle) and a push away is added that grows from
+velocity slides along the obstacle, the removed part turned to the obstacle's
+left so that an agent blocked head-on goes around it) and a push away is added that grows from
 zero at `safe_distance` to the inner wish's speed at `stop_distance`. Inside
 `stop_distance` only moving straight away is allowed: the agent backs off at
 the inner wish's speed. The speed never exceeds the inner wish's, so a
@@ -57,7 +58,12 @@ class AvoidObstacles(Behavior):
         towards = np.einsum("ij,ij->i", velocity, direction)
         inside = near & (distance < self.stop_distance)
         closeness = np.clip((self.safe_distance - distance) / (self.safe_distance - self.stop_distance), 0, 1)
-        slide = velocity - (np.maximum(towards, 0.0) + speed * closeness)[:, None] * direction
+        # The removed towards component turns into a slide to the left of the obstacle, always the
+        # same side (as a bug algorithm does), so that an agent blocked head-on goes around it
+        # instead of stopping, and does not dither between sides as its sonar readings shift.
+        left = np.column_stack((-direction[:, 1], direction[:, 0]))
+        blocked = np.maximum(towards, 0.0)
+        slide = velocity - (blocked + speed * closeness)[:, None] * direction + blocked[:, None] * left
         corrected = limit_speed(np.where(inside[:, None], -speed[:, None] * direction, slide), speed)
         affected = near & ((towards > 0.0) | inside)
         new = np.where(affected[:, None], corrected, velocity)

@@ -26,6 +26,7 @@ from behaviors.base import (
     heading_vectors,
     limit_speed,
     unit,
+    wrap_angle,
 )
 from behaviors.perimeter_defense import PerimeterDefense, repulsion
 
@@ -78,9 +79,6 @@ class SearchRendezvous(Behavior):
         own_target[seen] = view.position[seen]
         own_light[seen] = reading[seen]
         target, best = brightest_heard(view, own_target, own_light)
-        sees = (reading >= self.detect_threshold) & (reading > best)
-        target[sees] = view.position[sees]
-        best[sees] = reading[sees]
 
         velocity = self._search(view)
         heading = np.full(view.n, np.nan)
@@ -128,4 +126,4 @@ class SearchRendezvous(Behavior):
         """Heading (rad) turned towards the brighter of the left and right sensors."""
         left, right = np.nan_to_num(light[:, 0]), np.nan_to_num(light[:, 1])
         contrast = (left - right) / np.maximum(left + right, 1e-12)
-        return view.heading + self.phototaxis_gain * contrast
+        return wrap_angle(view.heading + self.phototaxis_gain * contrast)

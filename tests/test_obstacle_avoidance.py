@@ -44,20 +44,22 @@ def run(velocity: list[list[float]], echoes: list[list[list[float]]], heading: l
 
 
 def test_driving_straight_at_a_wall_removes_the_approach() -> None:
-    # Wall echo 0.2 m ahead along +x, wish (0.2, 0). The towards component 0.2 goes and a push
-    # 0.2 * (0.35 - 0.2) / (0.35 - 0.12) = 0.2 * 0.15 / 0.23 = 0.13043478260869565 m/s away is added.
+    # Wall echo 0.2 m ahead along +x, wish (0.2, 0). The towards component 0.2 goes, turned to the
+    # obstacle's left (0, 0.2), and a push 0.2 * (0.35 - 0.2) / (0.35 - 0.12) = 0.13043478 m/s away is
+    # added: (-0.13043478, 0.2), speed 0.23877 capped to the wish's 0.2 (x 0.837610):
+    # (-0.10925356, 0.16752212).
     wish = run([[0.2, 0.0]], [[[0.2, 0.0], [NAN, NAN]]])
     assert wish.velocity[0, 0] <= 0.0
-    assert_allclose(wish.velocity, [[-0.13043478260869565, 0.0]], atol=1e-12)
+    assert_allclose(wish.velocity, [[-0.10925356, 0.16752212]], atol=1e-7)
     assert math.isnan(wish.heading[0])
 
 
 def test_oblique_wish_slides_along_the_wall() -> None:
-    # Wish (0.1, 0.1) (speed 0.14142135623730950), echo (0.2, 0): towards = 0.1 removed,
-    # push 0.14142135623730950 * 0.15 / 0.23 = 0.09223131928520185 -> (-0.0922313, 0.1),
-    # speed 0.1360 < 0.1414 so not rescaled.
+    # Wish (0.1, 0.1) (speed 0.14142136), echo (0.2, 0): towards = 0.1 removed and turned left (0, 0.1),
+    # push 0.14142136 * 0.15 / 0.23 = 0.09223132 -> (-0.09223132, 0.2), speed 0.22024 capped to
+    # 0.14142136 (x 0.642124): (-0.05922334, 0.12842350).
     wish = run([[0.1, 0.1]], [[[0.2, 0.0]]])
-    assert_allclose(wish.velocity, [[-0.09223131928520185, 0.1]], atol=1e-12)
+    assert_allclose(wish.velocity, [[-0.05922334, 0.12842350]], atol=1e-7)
 
 
 def test_wish_parallel_to_the_wall_or_away_is_unchanged() -> None:
@@ -88,10 +90,10 @@ def test_standing_still_stays_still() -> None:
 
 
 def test_the_nearest_echo_is_the_one_avoided() -> None:
-    # Echoes (0.3, 0) and (0, 0.2): the nearest is along +y. Wish (0, 0.2) straight at it ->
-    # (0, -0.13043478260869565) as in the head-on case; the echo along +x is ignored.
+    # Echoes (0.3, 0) and (0, 0.2): the nearest is along +y. Wish (0, 0.2) straight at it -> the head-on
+    # case rotated by 90 degrees (left of +y is -x): (-0.16752212, -0.10925356); the +x echo is ignored.
     wish = run([[0.0, 0.2]], [[[0.3, 0.0], [0.0, 0.2], [NAN, NAN]]])
-    assert_allclose(wish.velocity, [[0.0, -0.13043478260869565]], atol=1e-12)
+    assert_allclose(wish.velocity, [[-0.16752212, -0.10925356]], atol=1e-7)
 
 
 def test_never_faster_than_the_inner_wish() -> None:
