@@ -8,14 +8,18 @@ from behaviors.marching import Marching
 from behaviors.obstacle_avoidance import AvoidObstacles
 from behaviors.perimeter_defense import PerimeterDefense
 from behaviors.search_rendezvous import SearchRendezvous
+from behaviors.station_keeping import HoldPosition
+from behaviors.waypoints import FollowWaypoints
 
 __all__ = [
     "AreaCoverage",
     "AvoidObstacles",
     "Behavior",
     "BobRule",
+    "FollowWaypoints",
     "HeadingConsensus",
     "HoldHeading",
+    "HoldPosition",
     "Marching",
     "MemorySpec",
     "PerimeterDefense",

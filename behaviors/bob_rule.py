@@ -46,6 +46,8 @@ class BobRule(Behavior):
     goal: fixed goal (x, y), m, or None.
     leader_id: id of the agent whose position is the goal (leader-follower),
         or None. Not together with `goal`.
+    nearest: if set, N_i is only the `nearest` closest neighbours heard (a
+        topological neighbourhood); None uses every neighbour heard.
     """
 
     name: ClassVar[str] = "bob-rule"
@@ -56,15 +58,20 @@ class BobRule(Behavior):
     max_speed: float = 1.0
     goal: tuple[float, float] | None = None
     leader_id: int | None = None
+    nearest: int | None = None
 
     def __post_init__(self) -> None:
         if self.H not in (0, 1):
             raise ValueError(f"H must be 0 or 1, not {self.H!r}")
         if self.goal is not None and self.leader_id is not None:
             raise ValueError("give either a fixed goal or a leader_id, not both")
+        if self.nearest is not None and self.nearest < 1:
+            raise ValueError(f"nearest must be at least 1, not {self.nearest!r}")
 
     def step(self, view: View) -> Wish:
         goal = self.goals(view)
+        if self.nearest is not None:
+            view = view.restrict(nearest_pairs(view, self.nearest))
         count = view.neighbor_count()
         per_neighbour = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
         d = view.offsets()
@@ -100,3 +107,16 @@ class BobRule(Behavior):
         is_self = view.table.ids[view.rows] == self.leader_id
         goal[is_self] = view.position[is_self]
         return goal
+
+
+def nearest_pairs(view: View, k: int) -> np.ndarray:
+    """(M,) mask of the pairs that are among the k closest neighbours of their listener."""
+    d = view.offsets()
+    d2 = np.einsum("ij,ij->i", d, d)
+    order = np.lexsort((d2, view.pair_i))
+    listener = view.pair_i[order]
+    starts = np.searchsorted(listener, listener, side="left")
+    rank = np.arange(order.size) - starts
+    keep = np.zeros(order.size, dtype=bool)
+    keep[order] = rank < k
+    return keep

@@ -10,6 +10,8 @@ from behaviors.marching import Marching
 from behaviors.obstacle_avoidance import AvoidObstacles
 from behaviors.perimeter_defense import PerimeterDefense
 from behaviors.search_rendezvous import SearchRendezvous
+from behaviors.station_keeping import HoldPosition
+from behaviors.waypoints import FollowWaypoints
 
 BEHAVIORS: dict[str, type[Behavior]] = {
     cls.name: cls
@@ -21,6 +23,8 @@ BEHAVIORS: dict[str, type[Behavior]] = {
         SearchRendezvous,
         Marching,
         AreaCoverage,
+        FollowWaypoints,
+        HoldPosition,
     )
 }
 

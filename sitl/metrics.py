@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from sitl.fleet import LockstepFleet
 from sitl.recorder import Recorder
+from sitl.swarm_metrics import aggregation_metrics, avoidance_metrics, leader_follower_metrics
 from sitl.world import FloatArray, points_in_polygon
 
 MetricsFn = Callable[[LockstepFleet, Recorder, dict[str, float]], dict]
@@ -215,6 +216,9 @@ def generic_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) ->
 
 
 METRICS: dict[str, MetricsFn] = {
+    "aggregation": aggregation_metrics,
+    "leader-follower": leader_follower_metrics,
+    "avoidance": avoidance_metrics,
     "heading-consensus": heading_consensus_metrics,
     "perimeter-defense": perimeter_defense_metrics,
     "search-exploration": search_metrics,

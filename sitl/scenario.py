@@ -163,8 +163,16 @@ class NetworkSpec(Model):
 class MetricsSpec(Model):
     """Which metrics and figures (`kind`) and their thresholds."""
 
-    kind: Literal["heading-consensus", "perimeter-defense", "search-exploration", "generic"] = "generic"
-    params: dict[str, float] = {}
+    kind: Literal[
+        "heading-consensus",
+        "perimeter-defense",
+        "search-exploration",
+        "aggregation",
+        "leader-follower",
+        "avoidance",
+        "generic",
+    ] = "generic"
+    params: dict[str, float | str | list[float]] = {}
 
 
 class Scenario(Model):

@@ -176,3 +176,25 @@ def test_invalid_parameters() -> None:
         BobRule(H=2)
     with pytest.raises(ValueError):
         BobRule(H=1, goal=(0.0, 0.0), leader_id=3)
+
+
+def test_nearest_limits_the_neighbourhood_to_the_k_closest() -> None:
+    # Agent 0 at the origin hears agents at 2, 3 and 50 m east (p0 = 10, H = 0). With nearest = 2 only the
+    # ones at 2 and 3 m count: v = ((1 - 100/4) + (1 - 100/9)) / 2 * (1, 0) = (-24 - 10.1111) / 2 = -17.0556
+    # along x; capped at max_speed 1 m/s -> (-1, 0). With all three, the far one adds (1 - 100/2500) = 0.96
+    # and N = 3: (-24 - 10.1111 + 0.96) / 3 = -11.0504 -> still capped; so compare uncapped values.
+    from behaviors.base import Senses, SwarmTable, View
+    from behaviors.bob_rule import BobRule
+
+    table = SwarmTable(
+        ids=np.arange(4),
+        position=np.array([[0.0, 0.0], [2.0, 0.0], [3.0, 0.0], [50.0, 0.0]]),
+        heading=np.zeros(4),
+        velocity=np.zeros((4, 2)),
+        memory={"goal": np.full((4, 2), np.nan)},
+    )
+    view = View(table, Senses.none(4), np.array([0]), np.zeros(3, dtype=np.intp), np.array([1, 2, 3]))
+    near = BobRule(p0=10.0, H=0, speed_scale=1.0, max_speed=100.0, nearest=2).step(view)
+    everyone = BobRule(p0=10.0, H=0, speed_scale=1.0, max_speed=100.0).step(view)
+    np.testing.assert_allclose(near.velocity, [[(-24.0 - 100.0 / 9.0 + 1.0) / 2.0, 0.0]])
+    np.testing.assert_allclose(everyone.velocity, [[(-24.0 - 100.0 / 9.0 + 1.0 + 0.96) / 3.0, 0.0]])
