@@ -91,7 +91,7 @@ def leader_follower_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, fl
     arrive_within = p.get("arrival_radius_m", 30.0)
     min_separation = p.get("min_separation_m", 1.0)
     times = rec.times()
-    leader_t, leader_xy = rec.agent_series(leader, "position")
+    _, leader_xy = rec.agent_series(leader, "position")
     final_goal = leader_xy[-1]
     path_length = float(np.hypot(*np.diff(leader_xy, axis=0).T).sum())
     closest = np.array([nearest_neighbor_m(f.position).min() for f in rec.frames])
