@@ -1,0 +1,68 @@
+"""Typed, timestamped sensor readings as the autonomy receives them.
+
+Whether they come from MAVLink telemetry on a vessel or from the simulator's
+sensor models, readings arrive in these forms: batches over agents (a vessel
+has one), each row with the index of its agent and the time the measurement
+was taken (s), so late and out-of-order readings can be handled by time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+
+
+@dataclass(frozen=True, eq=False)
+class GpsFix:
+    """GPS fixes: agent indices (k,), measurement times t_s (k,), WGS-84 lat_deg, lon_deg (k,),
+    and ground velocity_mps (k, 2) east, north (None when the source has none)."""
+
+    agents: IntArray
+    t_s: FloatArray
+    lat_deg: FloatArray
+    lon_deg: FloatArray
+    velocity_mps: FloatArray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class CompassReading:
+    """Compass headings: agent indices (k,), measurement times t_s (k,), heading_rad (k,) from east, CCW."""
+
+    agents: IntArray
+    t_s: FloatArray
+    heading_rad: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class ImuReading:
+    """IMU readings: agent indices (k,), measurement times t_s (k,), accel_body_mps2 (k, 2) in the body
+    frame (x forward, y left), gyro_z_radps (k,) yaw rate (CCW positive)."""
+
+    agents: IntArray
+    t_s: FloatArray
+    accel_body_mps2: FloatArray
+    gyro_z_radps: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class EncoderReading:
+    """Wheel encoders: agent indices (k,), measurement times t_s (k,), cumulative ticks (k, 2) int64 (left, right)."""
+
+    agents: IntArray
+    t_s: FloatArray
+    ticks: NDArray[np.int64]
+
+
+@dataclass(frozen=True, eq=False)
+class SensorReadings:
+    """What one `SensorSuite.sample` call delivers; None for a sensor that delivered nothing."""
+
+    gps: GpsFix | None = None
+    compass: CompassReading | None = None
+    imu: ImuReading | None = None
+    encoders: EncoderReading | None = None
