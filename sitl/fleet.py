@@ -87,7 +87,10 @@ class LockstepFleet:
         self.assignment = self.group_of.copy()
         memory = self._memory_fields(scenario)
         net = scenario.network
-        self.medium = BroadcastMedium(self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory)
+        radio_rng = np.random.default_rng([scenario.seed, 1])  # its own stream: radio draws never shift the rest
+        self.medium = BroadcastMedium(
+            self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory, net.channel(), radio_rng
+        )
         self.table = self.medium.table
         self.table.ids[: self.n] = np.arange(self.n)
         self.own_memory = {name: self.table.memory[name][: self.n] for name in memory}

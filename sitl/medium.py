@@ -1,8 +1,9 @@
 """An in-memory broadcast network for the lockstep simulator.
 
 Every `period_s` each active agent broadcasts its state; every other active
-agent within `range_m` hears it (the radio model with loss and latency plugs in
-here later). Messages live in a ring buffer; each listener keeps, per sender,
+agent within `range_m` hears it, or, with a radio channel model, hears it with
+the channel's delivery probability (falling with distance and with the number
+of transmitters around the listener) after its latency. Messages live in a ring buffer; each listener keeps, per sender,
 the last message it heard, and forgets it `expiry_s` after hearing it.
 Neighbour search uses a k-d tree, never all pairs.
 """
@@ -14,6 +15,10 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from behaviors.base import MemorySpec, SwarmTable
+from sitl.radio import RadioChannel
+
+# Bytes of one state message: id (2), time (4), x, y, heading, vx, vy (5 x 4) and 4 per memory value.
+STATE_HEADER_BYTES = 26
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -34,10 +39,19 @@ class BroadcastMedium:
         period_s: float,
         expiry_s: float,
         memory_fields: dict[str, MemorySpec],
+        channel: RadioChannel | None = None,
+        rng: np.random.Generator | None = None,
     ) -> None:
         if range_m <= 0 or period_s <= 0 or expiry_s <= 0:
             raise ValueError("range_m, period_s and expiry_s must be positive")
+        if channel is not None and rng is None:
+            raise ValueError("a radio channel needs a random generator")
         self.n = n_agents
+        self.channel, self.rng = channel, rng
+        self.payload_bytes = STATE_HEADER_BYTES + 4 * sum(int(np.prod(s.shape)) for s in memory_fields.values())
+        if channel is not None:
+            channel.check_payload(self.payload_bytes)
+            range_m = min(range_m, channel.nominal_range_m)
         self.range_m = range_m
         self.period_s = period_s
         self.expiry_s = expiry_s
@@ -63,6 +77,7 @@ class BroadcastMedium:
         self._decode()
         self.sent = 0
         self.delivered = 0
+        self.dropped = 0
 
     def due(self, t: float) -> bool:
         """Whether a broadcast round is due at time t (s)."""
@@ -91,12 +106,29 @@ class BroadcastMedium:
         pairs = cKDTree(table.position[senders]).query_pairs(self.range_m, output_type="ndarray")
         a, b = senders[pairs[:, 0]], senders[pairs[:, 1]]
         listener, sender = np.concatenate((a, b)), np.concatenate((b, a))
+        if self.channel is not None:
+            listener, sender, latency_s = self._through_channel(listener, sender, latency_s)
         self.delivered += listener.size
         self._round_slot.insert(0, self._slot)
         self._round_heard_s.insert(0, t + latency_s)
         del self._round_slot[self.rounds_kept :], self._round_heard_s[self.rounds_kept :]
         self._slot = (self._slot + 1) % self.rounds_kept
         self._merge(t + latency_s, listener, sender)
+
+    def _through_channel(self, listener: IntArray, sender: IntArray, step_s: float) -> tuple:
+        """Keep the deliveries the radio channel lets through; the round arrives after its mean latency.
+
+        A listener's interferers are the other transmitters within range of it
+        (all active agents broadcast in a round). Latency below one lockstep
+        step cannot be resolved: a round is heard `max(step, mean latency)` after it is sent.
+        """
+        in_range = np.bincount(listener, minlength=self.n)
+        interferers = np.maximum(in_range[listener] - 1, 0)
+        offset = self.table.position[sender] - self.table.position[listener]
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        ok = self.channel.deliver(self.rng, distance, interferers)
+        self.dropped += int(np.count_nonzero(~ok))
+        return listener[ok], sender[ok], max(step_s, self.channel.latency_mean_s)
 
     def _merge(self, now: float, listener: IntArray, sender: IntArray) -> None:
         """Newly heard messages (rank 0) replace older ones from the same sender; stale ones expire."""

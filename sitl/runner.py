@@ -42,7 +42,8 @@ def simulate(scenario: Scenario, progress: bool = False) -> RunResult:
     bar.close()
     metrics = METRICS[scenario.metrics.kind](fleet, recorder, dict(scenario.metrics.params))
     metrics = {"scenario": scenario.name, "seed": scenario.seed, "duration_s": scenario.duration_s, **metrics}
-    metrics["network"] = {"sent": fleet.medium.sent, "delivered": fleet.medium.delivered}
+    medium = fleet.medium
+    metrics["network"] = {"sent": medium.sent, "delivered": medium.delivered, "dropped": medium.dropped}
     return RunResult(fleet, recorder, metrics)
 
 

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 from behaviors.base import Behavior
 from behaviors.obstacle_avoidance import AvoidObstacles
 from behaviors.registry import behavior_class, with_avoidance
+from sitl.radio import RadioChannel
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Point = tuple[float, float]
@@ -82,7 +83,7 @@ class BehaviorChoice(Model):
 
 
 def _check_names(params: dict[str, Any], cls: type, what: str) -> None:
-    known = {f.name for f in dataclasses.fields(cls)} - {"inner"}
+    known = {f.name for f in dataclasses.fields(cls) if f.init} - {"inner"}
     unknown = sorted(set(params) - known)
     if unknown:
         raise ValueError(f"unknown {what}: {unknown}; known: {sorted(known)}")
@@ -153,11 +154,28 @@ class WorldSpec(Model):
 
 
 class NetworkSpec(Model):
-    """Broadcast radio: range (m), broadcast period (s), neighbour expiry (s)."""
+    """Broadcast radio: range (m), broadcast period (s), neighbour expiry (s).
+
+    `radio`: parameters of the lossy channel model (sitl.radio.RadioChannel);
+    absent means perfect delivery within range.
+    """
 
     range_m: PositiveFloat = 300.0
     broadcast_period_s: PositiveFloat = 0.1
     expiry_s: PositiveFloat = 1.0
+    radio: dict[str, float] | None = None
+
+    @model_validator(mode="after")
+    def _radio(self) -> NetworkSpec:
+        self.channel()
+        return self
+
+    def channel(self) -> RadioChannel | None:
+        """The radio channel model, or None for perfect delivery."""
+        if self.radio is None:
+            return None
+        _check_names(self.radio, RadioChannel, "radio parameter(s)")
+        return TypeAdapter(RadioChannel).validate_python(self.radio)
 
 
 class MetricsSpec(Model):
