@@ -21,13 +21,14 @@ from bob_autonomy.simple_estimator import FloatArray, wrap
 class BuoyModel:
     """The vessel's nominal model as the autonomy knows it (not the simulator's truth).
 
-    mass_kg, linear_drag_n_per_mps, quadratic_drag_n_per_mps2, max_thrust_n.
+    mass_kg (including added mass), linear_drag_n_per_mps, quadratic_drag_n_per_mps2,
+    max_thrust_n: nominal values for a BoB buoy (top speed 1 m/s at full thrust).
     """
 
-    mass_kg: float = 25.0
-    linear_drag_n_per_mps: float = 8.0
-    quadratic_drag_n_per_mps2: float = 12.0
-    max_thrust_n: float = 20.0
+    mass_kg: float = 35.0
+    linear_drag_n_per_mps: float = 5.0
+    quadratic_drag_n_per_mps2: float = 40.0
+    max_thrust_n: float = 45.0
 
 
 def rotate_to_body(vectors: FloatArray, heading_rad: FloatArray) -> FloatArray:
@@ -52,13 +53,16 @@ class BuoyVelocityController:
     model: BuoyModel = BuoyModel()
     gain_per_s: float = 1.5
 
-    def thrust(self, desired_mps: FloatArray, velocity_mps: FloatArray, heading_rad: FloatArray) -> FloatArray:
+    def thrust(
+        self, desired_mps: FloatArray, velocity_mps: FloatArray, heading_rad: FloatArray, max_thrust_n: FloatArray
+    ) -> FloatArray:
+        """Body-frame thrust (N, 2) in N, at most `max_thrust_n` (N,) each."""
         m = self.model
         desired = np.nan_to_num(desired_mps)
         speed = np.hypot(desired[:, 0], desired[:, 1])[:, None]
         feed_forward = (m.linear_drag_n_per_mps + m.quadratic_drag_n_per_mps2 * speed) * desired
         correction = m.mass_kg * self.gain_per_s * (desired - np.nan_to_num(velocity_mps))
-        world = clip_norm(feed_forward + correction, m.max_thrust_n)
+        world = clip_norm(feed_forward + correction, max_thrust_n)
         return rotate_to_body(world, np.nan_to_num(heading_rad))
 
 
@@ -75,6 +79,7 @@ class DiffDriveController:
     turn_gain_per_s: float = 4.0
 
     def wheels(self, desired_mps: FloatArray, desired_heading_rad: FloatArray, heading_rad: FloatArray) -> FloatArray:
+        """(N, 2) left and right wheel speeds, m/s, each within +-max_wheel_speed_mps."""
         desired = np.nan_to_num(desired_mps)
         speed = np.hypot(desired[:, 0], desired[:, 1])
         along = np.where(speed > 1e-6, np.arctan2(desired[:, 1], desired[:, 0]), heading_rad)

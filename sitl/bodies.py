@@ -168,6 +168,15 @@ class KinematicBodies:
         np.minimum.at(result, ray[hit], t[hit])
         return result
 
+    def believed(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(position, heading, velocity) the agents act on: the truth, at kinematic fidelity."""
+        return self.position, self.heading, self.velocity
+
+    def environment_at(self) -> tuple[FloatArray, FloatArray]:
+        """(wind, current) at each body, m/s: none at kinematic fidelity."""
+        zeros = np.zeros_like(self.position)
+        return zeros, zeros
+
     def light_sensors(self, rows: NDArray[np.int_], world: World) -> FloatArray:
         """(len(rows), 2) left and right light readings (W/m^2) of the given eBots."""
         angles = self.heading[rows][:, None] + EBOT_LIGHT_ANGLES_RAD[None]

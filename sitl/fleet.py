@@ -70,6 +70,28 @@ def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.r
     return np.array(points)
 
 
+def make_bodies(
+    scenario: Scenario, kinds: NDArray[np.int_], position: FloatArray, heading: FloatArray
+) -> KinematicBodies:
+    """Kinematic or physical bodies, as the scenario's fidelity says (physics draws from its own stream)."""
+    if scenario.fidelity == "kinematic":
+        return KinematicBodies(kinds, position, heading)
+    from sitl.physical_bodies import PhysicalBodies
+
+    rng = np.random.default_rng([scenario.seed, 2])
+    thrust = np.concatenate([np.full(g.count, g.thrust_fraction) for g in scenario.groups])
+    return PhysicalBodies(
+        kinds,
+        position,
+        heading,
+        scenario.environment.build(np.random.default_rng([scenario.seed, 3])),
+        scenario.origin.frame(),
+        rng,
+        thrust,
+        scenario.sensors.specs(),
+    )
+
+
 class LockstepFleet:
     """All agents of a scenario in one process, stepped in lockstep."""
 
@@ -79,7 +101,7 @@ class LockstepFleet:
         self.world = build_world(scenario, self.rng)
         position, heading = initial_poses(scenario, self.world, self.rng)
         kinds = np.concatenate([np.full(g.count, BODY_KINDS[g.body]) for g in scenario.groups])
-        self.bodies = KinematicBodies(kinds, position, heading)
+        self.bodies = make_bodies(scenario, kinds, position, heading)
         self.n = len(self.bodies)
         self.group_of = np.concatenate([np.full(g.count, k) for k, g in enumerate(scenario.groups)])
         self.group_names = [g.name for g in scenario.groups]
@@ -124,9 +146,10 @@ class LockstepFleet:
     def sync_table(self) -> None:
         """Copy the bodies' current states into table rows [0, N) (what each agent knows of itself)."""
         n = self.n
-        self.table.position[:n] = self.bodies.position
-        self.table.heading[:n] = self.bodies.heading
-        self.table.velocity[:n] = self.bodies.velocity
+        position, heading, velocity = self.bodies.believed()
+        self.table.position[:n] = position
+        self.table.heading[:n] = heading
+        self.table.velocity[:n] = velocity
 
     def senses(self) -> Senses:
         """Range finders and light sensors of the eBots; buoys sense neither (NaN)."""

@@ -10,7 +10,10 @@ from numpy.typing import NDArray
 
 from sitl.world import FloatArray
 
-TRAJECTORY_COLUMNS = ("t", "agent", "body", "behavior", "x", "y", "heading", "vx", "vy")
+TRAJECTORY_COLUMNS = (
+    "t", "agent", "body", "behavior", "x", "y", "heading", "vx", "vy",
+    "wind_x", "wind_y", "current_x", "current_y", "est_x", "est_y", "est_heading",
+)  # fmt: skip
 
 
 @dataclass
@@ -24,6 +27,9 @@ class Frame:
     velocity: FloatArray
     behavior: list[str]
     light_seen: bool = False
+    wind: FloatArray | None = None
+    current: FloatArray | None = None
+    estimate: FloatArray | None = None  # (k, 3): believed x, y (m) and heading (rad)
 
 
 @dataclass
@@ -43,18 +49,29 @@ class Recorder:
         self._next_s += self.period_s
 
     def write_csv(self, path: Path) -> None:
-        """trajectory.csv: one row per agent per frame; metres, radians from east CCW, m/s."""
+        """trajectory.csv: one row per agent per frame; metres, radians from east CCW, m/s.
+
+        Truth (x, y, heading, vx, vy), the wind and current at the agent (m/s),
+        and what the agent believed of its pose (est_x, est_y, est_heading).
+        """
         with open(path, "w", encoding="utf-8", newline="\n") as out:
             out.write(",".join(TRAJECTORY_COLUMNS) + "\n")
             for f in self.frames:
+                k = f.agents.size
+                wind = f.wind if f.wind is not None else np.zeros((k, 2))
+                current = f.current if f.current is not None else np.zeros((k, 2))
+                estimate = f.estimate if f.estimate is not None else np.full((k, 3), np.nan)
                 rows = [
-                    f"{f.t:.3f},{a},{self.body_names[a]},{b},{x:.4f},{y:.4f},{h:.5f},{vx:.4f},{vy:.4f}\n"
-                    for a, b, (x, y), h, (vx, vy) in zip(
+                    f"{f.t:.3f},{a},{self.body_names[a]},{f.behavior[a]},{x:.4f},{y:.4f},{h:.5f},{vx:.4f},{vy:.4f},"
+                    f"{wx:.3f},{wy:.3f},{cx:.3f},{cy:.3f},{ex:.4f},{ey:.4f},{eh:.5f}\n"
+                    for a, (x, y), h, (vx, vy), (wx, wy), (cx, cy), (ex, ey, eh) in zip(
                         f.agents.tolist(),
-                        [f.behavior[a] for a in f.agents.tolist()],
                         f.position.tolist(),
                         f.heading.tolist(),
                         f.velocity.tolist(),
+                        wind.tolist(),
+                        current.tolist(),
+                        estimate.tolist(),
                         strict=True,
                     )
                 ]

@@ -8,6 +8,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from sitl.fleet import LockstepFleet
@@ -55,6 +56,8 @@ def _body_names(fleet: LockstepFleet) -> list[str]:
 def _frame(fleet: LockstepFleet) -> Frame:
     active = fleet.active.nonzero()[0]
     bodies = fleet.bodies
+    wind, current = bodies.environment_at()
+    believed_position, believed_heading, _ = bodies.believed()
     return Frame(
         t=round(fleet.t, 9),
         agents=active,
@@ -63,6 +66,9 @@ def _frame(fleet: LockstepFleet) -> Frame:
         velocity=bodies.velocity[active].copy(),
         behavior=fleet.behavior_names(),
         light_seen=fleet.light_seen(),
+        wind=wind[active].copy(),
+        current=current[active].copy(),
+        estimate=np.column_stack((believed_position[active], believed_heading[active])),
     )
 
 

@@ -20,7 +20,10 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 from behaviors.base import Behavior
 from behaviors.obstacle_avoidance import AvoidObstacles
 from behaviors.registry import behavior_class, with_avoidance
+from bob_autonomy.geodesy import LocalFrame
+from sitl.environment import CurrentSpec, Environment, WindSpec
 from sitl.radio import RadioChannel
+from sitl.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Point = tuple[float, float]
@@ -90,12 +93,17 @@ def _check_names(params: dict[str, Any], cls: type, what: str) -> None:
 
 
 class Group(BehaviorChoice):
-    """`count` agents with the same body, start region and behaviour."""
+    """`count` agents with the same body, start region and behaviour.
+
+    thrust_fraction: the buoys' maximum thrust as a fraction of nominal (a weak
+    battery is below 1); physics fidelity only.
+    """
 
     name: str
     count: int = Field(ge=1)
     body: Literal["buoy", "ebot"]
     start: Start
+    thrust_fraction: float = Field(default=1.0, gt=0, le=1)
 
 
 class Event(Model):
@@ -178,6 +186,75 @@ class NetworkSpec(Model):
         return TypeAdapter(RadioChannel).validate_python(self.radio)
 
 
+class EnvironmentSpec(Model):
+    """Wind and current (physics fidelity): parameters of sitl.environment.WindSpec and CurrentSpec.
+
+    wind: speed_mps, toward_deg (direction it blows towards, deg from east CCW),
+    gust_intensity, gust_time_constant_s. current: speed_mps, toward_deg, grid.
+    """
+
+    wind: dict[str, float] = {}
+    current: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _buildable(self) -> EnvironmentSpec:
+        self.specs()
+        return self
+
+    def specs(self) -> tuple[WindSpec, CurrentSpec]:
+        _check_names(self.wind, WindSpec, "wind parameter(s)")
+        _check_names(self.current, CurrentSpec, "current parameter(s)")
+        return TypeAdapter(WindSpec).validate_python(self.wind), TypeAdapter(CurrentSpec).validate_python(self.current)
+
+    def build(self, rng: np.random.Generator) -> Environment:
+        wind, current = self.specs()
+        return Environment(wind, current, rng)
+
+
+SENSOR_SPECS = {
+    "gps": GpsSpec,
+    "compass": CompassSpec,
+    "imu": ImuSpec,
+    "encoders": EncoderSpec,
+    "ranges": RangeSpec,
+    "light": LightSpec,
+}
+
+
+class SensorsSpec(Model):
+    """Sensor models (physics fidelity), overriding the defaults of sitl.sensors' specs."""
+
+    gps: dict[str, Any] = {}
+    compass: dict[str, Any] = {}
+    imu: dict[str, Any] = {}
+    encoders: dict[str, Any] = {}
+    ranges: dict[str, Any] = {}
+    light: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _buildable(self) -> SensorsSpec:
+        self.specs()
+        return self
+
+    def specs(self) -> dict[str, Any]:
+        out = {}
+        for name, cls in SENSOR_SPECS.items():
+            values = getattr(self, name)
+            _check_names(values, cls, f"{name} parameter(s)")
+            out[name] = TypeAdapter(cls).validate_python(values)
+        return out
+
+
+class Origin(Model):
+    """The swarm's shared origin (WGS-84 degrees); default: Bedok Reservoir, Singapore."""
+
+    lat_deg: float = Field(default=1.3406, ge=-90, le=90)
+    lon_deg: float = Field(default=103.9266, ge=-180, le=180)
+
+    def frame(self) -> LocalFrame:
+        return LocalFrame(self.lat_deg, self.lon_deg)
+
+
 class MetricsSpec(Model):
     """Which metrics and figures (`kind`) and their thresholds."""
 
@@ -200,6 +277,10 @@ class Scenario(Model):
     dt_s: PositiveFloat = 0.1
     seed: int = 0
     log_period_s: PositiveFloat = 0.5
+    fidelity: Literal["kinematic", "physics"] = "kinematic"
+    origin: Origin = Origin()
+    environment: EnvironmentSpec = EnvironmentSpec()
+    sensors: SensorsSpec = SensorsSpec()
     resize_group: str | None = Field(default=None, description="group that --agents resizes (default: the first)")
     world: WorldSpec = WorldSpec()
     network: NetworkSpec = NetworkSpec()
