@@ -47,7 +47,15 @@ class BobRule(Behavior):
     leader_id: id of the agent whose position is the goal (leader-follower),
         or None. Not together with `goal`.
     nearest: if set, N_i is only the `nearest` closest neighbours heard (a
-        topological neighbourhood); None uses every neighbour heard.
+        topological neighbourhood; it may split a spread swarm into groups).
+    goal_radius_m: if positive, the goal term fades linearly to zero inside
+        this distance of the goal (0, as printed: a unit pull at any distance,
+        which piles a large group of followers onto its leader).
+    gabriel: if true, N_i is only the Gabriel neighbours among those heard
+        (j such that no other heard agent lies inside the circle on the
+        segment i-j as diameter): a local, Voronoi-like neighbourhood that keeps
+        the swarm connected and gives a lattice spaced about p0, where all heard
+        neighbours pull a large swarm much tighter than p0.
     """
 
     name: ClassVar[str] = "bob-rule"
@@ -59,6 +67,8 @@ class BobRule(Behavior):
     goal: tuple[float, float] | None = None
     leader_id: int | None = None
     nearest: int | None = None
+    gabriel: bool = False
+    goal_radius_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.H not in (0, 1):
@@ -72,6 +82,8 @@ class BobRule(Behavior):
         goal = self.goals(view)
         if self.nearest is not None:
             view = view.restrict(nearest_pairs(view, self.nearest))
+        if self.gabriel:
+            view = view.restrict(gabriel_pairs(view))
         count = view.neighbor_count()
         per_neighbour = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
         d = view.offsets()
@@ -83,7 +95,10 @@ class BobRule(Behavior):
             within = view.restrict(d2 <= self.p0**2)
             heard = within.sum_pairs(heading_vectors(view.table.heading[within.pair_j]))
             thetas = heading_vectors(view.heading) + heard
-            v = v + self.H * unit(to_goal) + self.H * per_neighbour[:, None] * thetas
+            pull = unit(to_goal)
+            if self.goal_radius_m > 0.0:
+                pull *= np.minimum(1.0, np.hypot(to_goal[:, 0], to_goal[:, 1]) / self.goal_radius_m)[:, None]
+            v = v + self.H * pull + self.H * per_neighbour[:, None] * thetas
         velocity = limit_speed(self.speed_scale * v, self.max_speed)
         return Wish(velocity, np.full(view.n, np.nan), {"goal": goal})
 
@@ -119,4 +134,28 @@ def nearest_pairs(view: View, k: int) -> np.ndarray:
     rank = np.arange(order.size) - starts
     keep = np.zeros(order.size, dtype=bool)
     keep[order] = rank < k
+    return keep
+
+
+def gabriel_pairs(view: View) -> np.ndarray:
+    """(M,) mask of the pairs (i, j) with no other neighbour k of i inside the circle on i-j as diameter.
+
+    k is inside when the angle i-k-j is obtuse: (p_i - p_k) . (p_j - p_k) < 0.
+    Costs the sum over agents of (neighbours heard)^2.
+    """
+    m = view.pair_i.size
+    if m == 0:
+        return np.zeros(0, dtype=bool)
+    order = np.argsort(view.pair_i, kind="stable")
+    listener = view.pair_i[order]
+    offsets = view.offsets()[order]  # p_j - p_i, grouped by listener
+    starts = np.searchsorted(listener, listener, side="left")
+    sizes = np.bincount(listener, minlength=view.n)[listener]
+    first = np.repeat(np.arange(m), sizes)  # each pair, once per other pair of the same listener
+    second = np.repeat(starts, sizes) + (np.arange(first.size) - np.repeat(np.cumsum(sizes) - sizes, sizes))
+    a, b = offsets[first], offsets[second]  # a = p_j - p_i, b = p_k - p_i
+    inside = (first != second) & (np.einsum("ij,ij->i", -b, a - b) < 0.0)
+    blocked = np.bincount(first, weights=inside, minlength=m) > 0
+    keep = np.zeros(m, dtype=bool)
+    keep[order] = ~blocked
     return keep

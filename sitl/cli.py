@@ -21,6 +21,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
     run.add_argument("--duration", type=float, metavar="SECONDS", help="simulated duration, s")
     run.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/NAME)")
+    run.add_argument(
+        "--fidelity",
+        choices=["kinematic", "physics"],
+        help="kinematic bodies and perfect knowledge, or dynamics, sensors and estimates (default: the scenario's)",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -32,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:24s} {description}")
         return 0
     try:
-        scenario = load_scenario(args.scenario).with_overrides(args.agents, args.seed, args.duration)
+        scenario = load_scenario(args.scenario).with_overrides(args.agents, args.seed, args.duration, args.fidelity)
     except ScenarioError as error:
         print(f"bob-sitl: {error}", file=sys.stderr)
         return 2

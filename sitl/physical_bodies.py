@@ -62,12 +62,22 @@ class PhysicalBodies(KinematicBodies):
         self.light_spec: LightSpec = sensor_specs.get("light", LightSpec())
         encoders: EncoderSpec = sensor_specs.get("encoders", EncoderSpec())
         self.buoy_sensors = SensorSuite(
-            b.size, frame, rng, sensor_specs.get("gps", GpsSpec()), sensor_specs.get("compass", CompassSpec()),
-            sensor_specs.get("imu", ImuSpec()), None,
+            b.size,
+            frame,
+            rng,
+            sensor_specs.get("gps", GpsSpec()),
+            sensor_specs.get("compass", CompassSpec()),
+            sensor_specs.get("imu", ImuSpec()),
+            None,
         )
         self.ebot_sensors = SensorSuite(
-            e.size, frame, rng, None, sensor_specs.get("compass", CompassSpec()),
-            sensor_specs.get("imu", ImuSpec()), encoders,
+            e.size,
+            frame,
+            rng,
+            None,
+            sensor_specs.get("compass", CompassSpec()),
+            sensor_specs.get("imu", ImuSpec()),
+            encoders,
         )
         self.frame = frame
         self.buoy_estimator = AlphaBetaBuoyEstimator(b.size)
@@ -76,9 +86,7 @@ class PhysicalBodies(KinematicBodies):
             self.position[e], self.heading[e], self.ebot_params.wheel_base_m, encoders.metres_per_tick
         )
         self.buoy_controller = BuoyVelocityController()
-        self.ebot_controller = DiffDriveController(
-            self.ebot_params.wheel_base_m, self.ebot_params.max_wheel_speed_mps
-        )
+        self.ebot_controller = DiffDriveController(self.ebot_params.wheel_base_m, self.ebot_params.max_wheel_speed_mps)
         self.t = -PRE_ROLL_S
         self.wind = np.zeros_like(self.position)
         self.current = np.zeros_like(self.position)
@@ -116,14 +124,18 @@ class PhysicalBodies(KinematicBodies):
             self.buoy.active = self.active[b]
             self.buoy.step(thrust, dt, self.wind[b], self.current[b], self.max_thrust_n)
             self.position[b], self.velocity[b], self.heading[b] = (
-                self.buoy.position_m, self.buoy.velocity_mps, self.buoy.heading_rad
+                self.buoy.position_m,
+                self.buoy.velocity_mps,
+                self.buoy.heading_rad,
             )
         if self.ebot is not None:
             wheels = self.ebot_controller.wheels(wish_velocity[e], wish_heading[e], estimate.heading[e])
             self.ebot.active = self.active[e]
             self.ebot.step(wheels, dt, world)
             self.position[e], self.velocity[e], self.heading[e] = (
-                self.ebot.position_m, self.ebot.velocity_mps, self.ebot.heading_rad
+                self.ebot.position_m,
+                self.ebot.velocity_mps,
+                self.ebot.heading_rad,
             )
             self.wall_contacts = self.ebot.wall_contacts + self.ebot.robot_contacts
         self.environment.step(dt)
@@ -141,7 +153,12 @@ class PhysicalBodies(KinematicBodies):
         if self.ebot is not None:
             d = self.ebot
             readings = self.ebot_sensors.sample(
-                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps,
+                self.t,
+                d.position_m,
+                d.velocity_mps,
+                d.acceleration_mps2,
+                d.heading_rad,
+                d.yaw_rate_radps,
                 d.wheel_travel_m,
             )
             if readings.encoders is not None:

@@ -305,10 +305,16 @@ class Scenario(Model):
         return sum(g.count for g in self.groups)
 
     def with_overrides(
-        self, agents: int | None = None, seed: int | None = None, duration_s: float | None = None
+        self,
+        agents: int | None = None,
+        seed: int | None = None,
+        duration_s: float | None = None,
+        fidelity: str | None = None,
     ) -> Scenario:
         """A copy with the command-line overrides applied (and validated)."""
         data = self.model_dump()
+        if fidelity is not None:
+            data["fidelity"] = fidelity
         if seed is not None:
             data["seed"] = seed
         if duration_s is not None:

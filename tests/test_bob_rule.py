@@ -198,3 +198,25 @@ def test_nearest_limits_the_neighbourhood_to_the_k_closest() -> None:
     everyone = BobRule(p0=10.0, H=0, speed_scale=1.0, max_speed=100.0).step(view)
     np.testing.assert_allclose(near.velocity, [[(-24.0 - 100.0 / 9.0 + 1.0) / 2.0, 0.0]])
     np.testing.assert_allclose(everyone.velocity, [[(-24.0 - 100.0 / 9.0 + 1.0 + 0.96) / 3.0, 0.0]])
+
+
+def test_gabriel_neighbourhood_drops_a_neighbour_shadowed_by_a_closer_one() -> None:
+    # Agent 0 at the origin hears 1 at (2, 0), 2 at (4, 0.5) and 3 at (0, 3).
+    # Pair 0-2: agent 1 sees the segment 0-2 under an obtuse angle ((0-2,0-0).(4-2,0.5-0) = -4 < 0) -> dropped.
+    # Pair 0-1: nobody inside the circle on 0-1. Pair 0-3: agent 1: (-2,0).(-2,3) = 4 > 0; agent 2:
+    # (-4,-0.5).(-4,2.5) = 14.75 > 0 -> kept. So N = 2 (agents 1 and 3); with p0 = 1, H = 0:
+    # v = [(1 - 1/4)(1, 0) + (1 - 1/9)(0, 1)] / 2 = (0.375, 0.444444).
+    from behaviors.base import Senses, SwarmTable, View
+    from behaviors.bob_rule import BobRule, gabriel_pairs
+
+    table = SwarmTable(
+        ids=np.arange(4),
+        position=np.array([[0.0, 0.0], [2.0, 0.0], [4.0, 0.5], [0.0, 3.0]]),
+        heading=np.zeros(4),
+        velocity=np.zeros((4, 2)),
+        memory={"goal": np.full((4, 2), np.nan)},
+    )
+    view = View(table, Senses.none(4), np.array([0]), np.zeros(3, dtype=np.intp), np.array([1, 2, 3]))
+    assert gabriel_pairs(view).tolist() == [True, False, True]
+    wish = BobRule(p0=1.0, H=0, speed_scale=1.0, max_speed=100.0, gabriel=True).step(view)
+    np.testing.assert_allclose(wish.velocity, [[0.375, 8.0 / 18.0]])
