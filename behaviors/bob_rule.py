@@ -48,6 +48,9 @@ class BobRule(Behavior):
         or None. Not together with `goal`.
     nearest: if set, N_i is only the `nearest` closest neighbours heard (a
         topological neighbourhood; it may split a spread swarm into groups).
+    align_course: if true, the consensus term aligns the direction of travel
+        (unit velocity; zero when still) instead of the hull heading: for an
+        omnidirectional buoy the hull heading says nothing about its motion.
     goal_radius_m: if positive, the goal term fades linearly to zero inside
         this distance of the goal (0, as printed: a unit pull at any distance,
         which piles a large group of followers onto its leader).
@@ -69,6 +72,7 @@ class BobRule(Behavior):
     nearest: int | None = None
     gabriel: bool = False
     goal_radius_m: float = 0.0
+    align_course: bool = False
 
     def __post_init__(self) -> None:
         if self.H not in (0, 1):
@@ -93,8 +97,12 @@ class BobRule(Behavior):
             # A leader's own goal is its position: a zero bearing, so no goal term.
             to_goal = np.where(np.isfinite(goal), goal - view.position, 0.0)
             within = view.restrict(d2 <= self.p0**2)
-            heard = within.sum_pairs(heading_vectors(view.table.heading[within.pair_j]))
-            thetas = heading_vectors(view.heading) + heard
+            if self.align_course:
+                heard = within.sum_pairs(unit(view.table.velocity[within.pair_j]))
+                thetas = unit(view.table.velocity[view.rows]) + heard
+            else:
+                heard = within.sum_pairs(heading_vectors(view.table.heading[within.pair_j]))
+                thetas = heading_vectors(view.heading) + heard
             pull = unit(to_goal)
             if self.goal_radius_m > 0.0:
                 pull *= np.minimum(1.0, np.hypot(to_goal[:, 0], to_goal[:, 1]) / self.goal_radius_m)[:, None]

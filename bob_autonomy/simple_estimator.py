@@ -47,11 +47,21 @@ class AlphaBetaBuoyEstimator:
         self.t_fix = np.full(n, np.nan)
         self.rejected = 0
 
-    def update_gps(self, agents: IntArray, t_s: FloatArray, xy_m: FloatArray) -> None:
-        """Fuse position fixes (local frame, m) measured at t_s."""
+    def update_gps(
+        self, agents: IntArray, t_s: FloatArray, xy_m: FloatArray, velocity_mps: FloatArray | None = None
+    ) -> None:
+        """Fuse position fixes (local frame, m) measured at t_s, and the receiver's ground velocity if given.
+
+        A GPS receiver measures velocity (Doppler) far better than differencing
+        positions can: when given, the velocity estimate moves halfway to it
+        at each fix.
+        """
         good = np.isfinite(xy_m).all(axis=1) & np.isfinite(t_s)
+        if velocity_mps is not None:
+            good &= np.isfinite(velocity_mps).all(axis=1)
         self.rejected += int(np.count_nonzero(~good))
         agents, t_s, xy_m = agents[good], t_s[good], xy_m[good]
+        measured_velocity = velocity_mps[good] if velocity_mps is not None else None
         fresh = np.isnan(self.t_fix[agents])
         late = ~fresh & (t_s <= self.t_fix[agents])
         self.rejected += int(np.count_nonzero(late))
@@ -65,6 +75,8 @@ class AlphaBetaBuoyEstimator:
         residual = z - predicted
         self.position[a] = predicted + self.alpha * residual
         self.velocity[a] += self.beta * residual / np.maximum(dt, 1e-3)
+        if measured_velocity is not None:
+            self.velocity[a] += 0.5 * (measured_velocity[use] - self.velocity[a])
         self.t_fix[a] = t
 
     def update_compass(self, agents: IntArray, heading_rad: FloatArray) -> None:

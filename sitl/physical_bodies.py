@@ -171,7 +171,7 @@ class PhysicalBodies(KinematicBodies):
         if readings.gps is not None:
             fix = readings.gps
             x, y = self.frame.to_local(fix.lat_deg, fix.lon_deg)
-            self.buoy_estimator.update_gps(fix.agents, fix.t_s, np.column_stack((x, y)))
+            self.buoy_estimator.update_gps(fix.agents, fix.t_s, np.column_stack((x, y)), fix.velocity_mps)
         if readings.compass is not None:
             self.buoy_estimator.update_compass(readings.compass.agents, readings.compass.heading_rad)
 

@@ -100,7 +100,11 @@ class GpsSpec:
     outages: (t_start_s, t_end_s) windows without fixes. correlated: time
     constant (s) of the first-order Gauss-Markov position error (0 = white:
     independent from fix to fix). velocity_noise_mps: per-axis standard
-    deviation of the ground velocity (m/s).
+    deviation of the ground velocity (m/s). common_noise_m: per-axis standard
+    deviation (m) of an error shared by every receiver of the fleet (same
+    satellites, same atmosphere), a Gauss-Markov process with time constant
+    common_time_constant_s: it moves the whole swarm's fixes together, so it
+    spoils absolute but not relative positions.
     """
 
     rate_hz: float = 5.0
@@ -110,10 +114,13 @@ class GpsSpec:
     outages: tuple[tuple[float, float], ...] = ()
     correlated: float = 0.0
     velocity_noise_mps: float = 0.1
+    common_noise_m: float = 0.0
+    common_time_constant_s: float = 60.0
 
     def __post_init__(self) -> None:
         _check_rate_latency(self)
-        _check_nonnegative(self, "noise_m", "quantum_deg", "correlated", "velocity_noise_mps")
+        _check_nonnegative(self, "noise_m", "quantum_deg", "correlated", "velocity_noise_mps", "common_noise_m")
+        _require(self.common_time_constant_s > 0.0, "GpsSpec.common_time_constant_s must be positive")
         for window in self.outages:
             _require(
                 len(window) == 2 and all(math.isfinite(v) for v in window) and window[0] < window[1],
@@ -320,6 +327,8 @@ class SensorSuite:
         self._gps = _Channel(n, gps.rate_hz, gps.latency_s, rng) if gps is not None else None
         self._gps_error_m = np.zeros((n, 2))
         self._gps_error_t_s = np.full(n, np.nan)  # time of each agent's last error draw (NaN: none yet)
+        self._common_error_m = np.zeros(2)
+        self._common_error_t_s: float | None = None
 
         self._compass = _Channel(n, compass.rate_hz, compass.latency_s, rng) if compass is not None else None
         self.compass_bias_rad = (
@@ -416,13 +425,26 @@ class SensorSuite:
             error = fresh
         self._gps_error_m[agents] = error
         self._gps_error_t_s[agents] = t
-        noisy = position[agents] + error
+        noisy = position[agents] + error + self._common_gps_error(t, spec)
         lat, lon = self.frame.to_geodetic(noisy[:, 0], noisy[:, 1])
         if spec.quantum_deg > 0.0:
             lat = np.round(lat / spec.quantum_deg) * spec.quantum_deg
             lon = np.round(lon / spec.quantum_deg) * spec.quantum_deg
         ground_velocity = velocity[agents] + spec.velocity_noise_mps * self.rng.standard_normal((k, 2))
         self._gps.push(t, GpsFix(agents, np.full(k, t), lat, lon, ground_velocity))
+
+    def _common_gps_error(self, t: float, spec: GpsSpec) -> FloatArray:
+        """(2,) the fleet-wide GPS error at t (s): exact Gauss-Markov steps between calls."""
+        if spec.common_noise_m == 0.0:
+            return np.zeros(2)
+        if self._common_error_t_s is None:
+            self._common_error_m = spec.common_noise_m * self.rng.standard_normal(2)
+        elif t > self._common_error_t_s:
+            rho = math.exp(-(t - self._common_error_t_s) / spec.common_time_constant_s)
+            fresh = spec.common_noise_m * self.rng.standard_normal(2)
+            self._common_error_m = rho * self._common_error_m + math.sqrt(1.0 - rho**2) * fresh
+        self._common_error_t_s = t
+        return self._common_error_m
 
     def _measure_compass(self, t: float, heading: FloatArray) -> None:
         spec = self.compass

@@ -466,3 +466,26 @@ def test_agents_with_nan_truth_get_no_fix() -> None:
         if r.gps is not None:
             agents.extend(r.gps.agents.tolist())
     assert 2 not in agents and set(agents) == {0, 1, 3}
+
+
+def test_common_mode_gps_error_moves_every_receiver_together() -> None:
+    # Independent noise 0, common-mode 3 m: two receivers 10 m apart always read exactly 10 m apart
+    # (to the 1e-7 deg quantum, ~1.1 cm), while each fix is off by metres.
+    frame = LocalFrame(1.33, 103.92)
+    gps = GpsSpec(rate_hz=10.0, noise_m=0.0, latency_s=0.0, common_noise_m=3.0, common_time_constant_s=30.0)
+    suite = SensorSuite(2, frame, np.random.default_rng(5), gps=gps, compass=None, imu=None, encoders=None)
+    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
+    zeros2, zeros1 = np.zeros((2, 2)), np.zeros(2)
+    offsets, separations = [], []
+    for step in range(1, 2001):
+        fix = suite.sample(step * 0.01, truth, zeros2, zeros2, zeros1, zeros1).gps
+        if fix is None or fix.agents.size < 2 or fix.t_s[0] != fix.t_s[1]:
+            continue
+        x, y = frame.to_local(fix.lat_deg, fix.lon_deg)
+        order = np.argsort(fix.agents)
+        x, y = x[order], y[order]
+        offsets.append(np.hypot(x[0], y[0]))
+        separations.append(np.hypot(x[1] - x[0], y[1] - y[0]))
+    assert len(separations) > 10
+    np.testing.assert_allclose(separations, 10.0, atol=0.03)
+    assert max(offsets) > 0.5
