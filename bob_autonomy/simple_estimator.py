@@ -114,15 +114,17 @@ class OdometryEstimator:
         self.heading = np.asarray(heading_rad, dtype=float).copy()
         self.velocity = np.zeros_like(self.position)
         self.wheel_base_m, self.metres_per_tick, self.compass_gain = wheel_base_m, metres_per_tick, compass_gain
-        self.ticks = np.full((self.position.shape[0], 2), -1, dtype=np.int64)
+        self.ticks = np.zeros((self.position.shape[0], 2), dtype=np.int64)
+        self.has_ticks = np.zeros(self.position.shape[0], dtype=bool)  # cumulative ticks may be negative
         self.t_ticks = np.full(self.position.shape[0], np.nan)
         self.rejected = 0
 
     def update_encoders(self, agents: IntArray, t_s: FloatArray, ticks: NDArray[np.int64]) -> None:
         """Integrate the wheel travel since the last cumulative (left, right) tick counts."""
-        first = self.ticks[agents, 0] < 0
+        first = ~self.has_ticks[agents]
         self.ticks[agents[first]] = ticks[first]
         self.t_ticks[agents[first]] = t_s[first]
+        self.has_ticks[agents[first]] = True
         a, t, k = agents[~first], t_s[~first], ticks[~first]
         travel = (k - self.ticks[a]) * self.metres_per_tick
         forward = travel.mean(axis=1)

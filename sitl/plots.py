@@ -66,13 +66,17 @@ def headings(fleet: LockstepFleet, rec: Recorder, metrics: dict, path: Path) -> 
     plt.close(fig)
 
 
-def series(metrics: dict, keys: list[tuple[str, str]], title: str, path: Path, marks: dict[str, float]) -> None:
+def series(
+    metrics: dict, keys: list[tuple[str, str]], title: str, path: Path, marks: dict[str, float], log: bool = False
+) -> None:
     """Time series stored in metrics (key, y label), with vertical marks at named times."""
     fig, axes = plt.subplots(len(keys), 1, figsize=(8, 3 * len(keys)), sharex=True, squeeze=False)
     for axis, (key, label) in zip(axes[:, 0], keys, strict=True):
         data = metrics[key]
         axis.plot(data["t_s"], data["value"], lw=1.5)
         axis.set_ylabel(label)
+        if log:
+            axis.set_yscale("log")
         for name, t in marks.items():
             if t is not None:
                 axis.axvline(t, color="gray", ls="--")
@@ -104,6 +108,20 @@ def write_figures(fleet: LockstepFleet, rec: Recorder, metrics: dict, out: Path)
             "Perimeter defence: coverage of the room",
             out / names[-1],
             {"removal": metrics.get("removal_t_s")},
+        )
+    elif kind == "aggregation":
+        names.append("hull_area.png")
+        switches = sorted({e["t_s"] for e in fleet.events_log if e["action"] == "set-behavior"})
+        marks = {f"switch {k + 1}": t for k, t in enumerate(switches)}
+        series(metrics, [("hull_area_m2", "convex hull area (m^2)")], "Aggregation", out / names[-1], marks, log=True)
+    elif kind == "leader-follower":
+        names.append("spread.png")
+        series(
+            metrics,
+            [("farthest_from_leader_m", "farthest buoy from the leader (m)")],
+            "Leader-follower",
+            out / names[-1],
+            {},
         )
     elif kind == "search-exploration":
         names.append("search.png")
