@@ -54,7 +54,7 @@ class AlphaBetaBuoyEstimator:
 
         A GPS receiver measures velocity (Doppler) far better than differencing
         positions can: when given, the velocity estimate moves halfway to it
-        at each fix.
+        at each fix and the position residuals no longer feed the velocity.
         """
         good = np.isfinite(xy_m).all(axis=1) & np.isfinite(t_s)
         if velocity_mps is not None:
@@ -74,8 +74,11 @@ class AlphaBetaBuoyEstimator:
         predicted = self.position[a] + self.velocity[a] * dt
         residual = z - predicted
         self.position[a] = predicted + self.alpha * residual
-        self.velocity[a] += self.beta * residual / np.maximum(dt, 1e-3)
-        if measured_velocity is not None:
+        if measured_velocity is None:
+            self.velocity[a] += self.beta * residual / np.maximum(dt, 1e-3)
+        else:
+            # The receiver's Doppler velocity (~0.1 m/s noise) beats any velocity drawn from position
+            # residuals (several m of noise over 0.2 s): use it alone, smoothed.
             self.velocity[a] += 0.5 * (measured_velocity[use] - self.velocity[a])
         self.t_fix[a] = t
 

@@ -7,7 +7,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from sitl.fleet import LockstepFleet
 from sitl.recorder import Recorder
-from sitl.world import FloatArray, points_in_polygon
+from sitl.world import FloatArray, point_segment_offsets, points_in_polygon
 
 
 def hull_area_m2(points: FloatArray) -> float:
@@ -127,9 +127,11 @@ def leader_follower_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, fl
 def avoidance_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
     """Agent `mover` reaching its goal through a swarm: did it arrive, and did it yield, go around or through?
 
-    through: part of its path lies inside the swarm's convex hull (taken when
-    it sets off). around: none does. yield: the swarm members were displaced by
-    more than `yield_displacement_m` while it passed.
+    through: part of its path lies deeper than `through_depth_m` inside the
+    swarm's convex hull (taken when it sets off; the edge of a lattice is
+    ragged, so grazing it is not crossing). around: no part does. yield: the
+    swarm members were displaced by more than `yield_displacement_m` while it
+    passed.
     """
     mover = int(p.get("mover", 0))
     goal = np.array([p["goal_x_m"], p["goal_y_m"]])
@@ -143,7 +145,9 @@ def avoidance_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) 
     hull = hull_points[ConvexHull(hull_points).vertices]
     t_m, path = rec.agent_series(mover, "position")
     path_after = path[t_m >= t_go]
-    inside = points_in_polygon(path_after, hull)
+    edges = np.stack((hull, np.roll(hull, -1, axis=0)), axis=1)
+    depth = np.hypot(*point_segment_offsets(path_after, edges).transpose(2, 0, 1)).min(axis=1)
+    inside = points_in_polygon(path_after, hull) & (depth > p.get("through_depth_m", 40.0))
     distance = np.hypot(*(path_after - goal).T)
     arrived = np.flatnonzero(distance <= arrive_within)
     displacement = max(
