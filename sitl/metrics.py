@@ -12,6 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sitl.fleet import LockstepFleet
+from sitl.radio import TABLE_1, RadioChannel, measure_delivery_table
 from sitl.recorder import Recorder
 from sitl.swarm_metrics import aggregation_metrics, avoidance_metrics, leader_follower_metrics
 from sitl.world import FloatArray, points_in_polygon
@@ -201,6 +202,68 @@ def search_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> 
     return _finish(result)
 
 
+def exploration_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
+    """Which rooms have been visited (a robot inside), and when every room had been."""
+    rooms = fleet.world.rooms
+    names = [r.name or f"room {k + 1}" for k, r in enumerate(fleet.scenario.world.rooms)]
+    times = rec.times()
+    first_visit = [None] * len(rooms)
+    visited_count = []
+    for f in rec.frames:
+        for k, room in enumerate(rooms):
+            if first_visit[k] is None and points_in_polygon(f.position, room).any():
+                first_visit[k] = float(f.t)
+        visited_count.append(sum(v is not None for v in first_visit))
+    everywhere = all(v is not None for v in first_visit)
+    result = {
+        "agents": int(fleet.n),
+        "first_visit_s": dict(zip(names, first_visit, strict=True)),
+        "all_rooms_visited_s": max(first_visit) if everywhere else None,
+        "rooms_visited": {"t_s": times.tolist(), "value": visited_count},
+        "criteria": {"every_room_visited": everywhere},
+    }
+    return _finish(result)
+
+
+def radio_table_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
+    """Table 1 measured with the scenario's radio channel: delivery against distance and density.
+
+    For each (N, mean nearest-neighbour distance) of the field table, `rounds`
+    broadcast rounds of such a swarm (sitl.radio.measure_delivery_table, seeded
+    by the scenario); each entry must be within `tolerance_pp` points. The
+    fleet's own delivery counters are reported beside it.
+    """
+    channel = fleet.scenario.network.channel() or RadioChannel()
+    rng = np.random.default_rng([fleet.scenario.seed, 4])
+    tolerance = p.get("tolerance_pp", 3.0)
+    rows, criteria = [], {}
+    for (n, spacing), reference in TABLE_1.items():
+        measured = measure_delivery_table(
+            channel, rng, n, spacing, list(reference), int(p.get("rounds", 300)), p.get("bin_halfwidth_m", 5.0)
+        )
+        for distance, expected in reference.items():
+            got = measured[distance]
+            rows.append(
+                {
+                    "agents": n,
+                    "mean_nn_m": spacing,
+                    "distance_m": distance,
+                    "table_1": expected,
+                    "measured": round(got, 4),
+                    "difference_pp": round(100 * (got - expected), 2),
+                }
+            )
+            criteria[f"N{n}_d{distance:g}m_within_{tolerance:g}pp"] = abs(100 * (got - expected)) <= tolerance
+    medium = fleet.medium
+    return _finish(
+        {
+            "table": rows,
+            "fleet_delivery_ratio": medium.delivered / max(1, medium.delivered + medium.dropped),
+            "criteria": criteria,
+        }
+    )
+
+
 def generic_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
     """Final spread of the swarm."""
     final = rec.frames[-1]
@@ -222,5 +285,7 @@ METRICS: dict[str, MetricsFn] = {
     "heading-consensus": heading_consensus_metrics,
     "perimeter-defense": perimeter_defense_metrics,
     "search-exploration": search_metrics,
+    "exploration": exploration_metrics,
+    "radio-table": radio_table_metrics,
     "generic": generic_metrics,
 }

@@ -114,6 +114,15 @@ def write_figures(fleet: LockstepFleet, rec: Recorder, metrics: dict, out: Path)
         switches = sorted({e["t_s"] for e in fleet.events_log if e["action"] == "set-behavior"})
         marks = {f"switch {k + 1}": t for k, t in enumerate(switches)}
         series(metrics, [("hull_area_m2", "convex hull area (m^2)")], "Aggregation", out / names[-1], marks, log=True)
+    elif kind == "exploration":
+        names.append("rooms.png")
+        series(
+            metrics,
+            [("rooms_visited", "rooms visited")],
+            "Exploration of the rooms",
+            out / names[-1],
+            {"all visited": metrics["all_rooms_visited_s"]},
+        )
     elif kind == "leader-follower":
         names.append("spread.png")
         series(

@@ -265,6 +265,8 @@ class MetricsSpec(Model):
         "aggregation",
         "leader-follower",
         "avoidance",
+        "exploration",
+        "radio-table",
         "generic",
     ] = "generic"
     params: dict[str, float | str | list[float]] = {}

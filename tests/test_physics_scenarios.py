@@ -1,0 +1,74 @@
+"""The buoy and eBot experiments at physics fidelity meet their criteria (DESIGN.md experiments 2 to 7)."""
+
+from __future__ import annotations
+
+import pytest
+
+from sitl.runner import simulate
+from sitl.scenario import load_scenario
+
+
+def run(name: str, **overrides) -> dict:
+    return simulate(load_scenario(name).with_overrides(**overrides)).metrics
+
+
+def test_aggregation_shrinks_then_spreads() -> None:
+    m = run("aggregation")
+    assert 62_500 <= m["area_before_m2"] <= 250_000
+    assert 625 <= m["area_aggregated_m2"] <= 2_500
+    assert 240 <= m["aggregation_time_s"] <= 960
+    assert m["area_final_m2"] >= 10 * m["area_aggregated_m2"]
+    assert m["network"]["dropped"] > 0  # the lossy radio is in the loop
+    assert m["passed"]
+
+
+def test_leader_follower_keeps_the_group_and_spacing() -> None:
+    m = run("leader-follower")
+    assert m["leader_path_m"] >= 350
+    assert m["closest_approach_m"] >= 1.0
+    assert m["all_within_radius_of_leader_s"] is not None
+    # The weak buoy lags but arrives with the group.
+    assert m["weak_final_distance_to_leader_m"][0] <= 40.0
+    assert m["passed"]
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "yield",
+        "through",
+        pytest.param(
+            "around",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="with a fixed irregular lattice the mover (p0 = 100 m) is caught in a pocket of the "
+                "swarm instead of skirting it: eq. (5) has local minima there",
+            ),
+        ),
+    ],
+)
+def test_avoidance_outcomes(case: str) -> None:
+    m = run(f"avoidance-{case}")
+    assert m["arrival_time_s"] is not None
+    assert m["outcome"] == case
+    assert m["passed"]
+
+
+def test_five_rooms_all_visited() -> None:
+    m = run("five-rooms")
+    assert m["all_rooms_visited_s"] is not None
+    assert all(t is not None for t in m["first_visit_s"].values())
+    assert m["passed"]
+
+
+def test_radio_table_within_three_points() -> None:
+    m = run("radio-table")
+    assert len(m["table"]) == 8
+    assert all(abs(row["difference_pp"]) <= 3.0 for row in m["table"])
+    assert m["passed"]
+
+
+@pytest.mark.parametrize("name", ["heading-consensus", "perimeter-defense", "search-exploration"])
+def test_ebot_scenarios_hold_at_physics_fidelity(name: str) -> None:
+    m = run(name, fidelity="physics")
+    assert m["passed"], m["criteria"]
