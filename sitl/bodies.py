@@ -58,6 +58,7 @@ class KinematicBodies:
         self.buoys = np.flatnonzero(self.kind == BUOY)
         self.active = np.ones(n, dtype=bool)
         self.wall_contacts = 0
+        self.robot_contacts = 0  # kinematic bodies pass through each other; physical ones count contacts
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])

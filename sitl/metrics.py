@@ -155,6 +155,7 @@ def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, 
         "final_largest_gap_m": float(gap[-1]),
         "always_inside_room": bool(all(inside)),
         "wall_contacts": int(fleet.bodies.wall_contacts),
+        "robot_contacts": int(fleet.bodies.robot_contacts),
         "coverage": {"t_s": times.tolist(), "value": np.round(coverage, 4).tolist()},
         "largest_gap_m": {"t_s": times.tolist(), "value": np.round(gap, 3).tolist()},
     }

@@ -137,7 +137,8 @@ class PhysicalBodies(KinematicBodies):
                 self.ebot.velocity_mps,
                 self.ebot.heading_rad,
             )
-            self.wall_contacts = self.ebot.wall_contacts + self.ebot.robot_contacts
+            self.wall_contacts = self.ebot.wall_contacts
+            self.robot_contacts = self.ebot.robot_contacts
         self.environment.step(dt)
         self.t += dt
         self._sense()

@@ -77,8 +77,7 @@ class BehaviorChoice(Model):
             cls = behavior_class(self.behavior)
         except KeyError as error:
             raise ValueError(error.args[0]) from None
-        _check_names(self.params, cls, f"parameter(s) for {self.behavior!r}")
-        behavior = TypeAdapter(cls).validate_python(self.params)
+        behavior = _build(cls, self.params, f"parameter(s) for {self.behavior!r}")
         if not self.avoid_obstacles:
             return behavior
         _check_names(self.avoid_params, AvoidObstacles, "avoid_params")
@@ -90,6 +89,12 @@ def _check_names(params: dict[str, Any], cls: type, what: str) -> None:
     unknown = sorted(set(params) - known)
     if unknown:
         raise ValueError(f"unknown {what}: {unknown}; known: {sorted(known)}")
+
+
+def _build(cls: type, params: dict[str, Any], what: str) -> Any:
+    """An instance of dataclass `cls` from `params`: names checked, values validated (ValueError if not)."""
+    _check_names(params, cls, what)
+    return TypeAdapter(cls).validate_python(params)
 
 
 class Group(BehaviorChoice):
@@ -182,8 +187,7 @@ class NetworkSpec(Model):
         """The radio channel model, or None for perfect delivery."""
         if self.radio is None:
             return None
-        _check_names(self.radio, RadioChannel, "radio parameter(s)")
-        return TypeAdapter(RadioChannel).validate_python(self.radio)
+        return _build(RadioChannel, self.radio, "radio parameter(s)")
 
 
 class EnvironmentSpec(Model):
@@ -202,9 +206,10 @@ class EnvironmentSpec(Model):
         return self
 
     def specs(self) -> tuple[WindSpec, CurrentSpec]:
-        _check_names(self.wind, WindSpec, "wind parameter(s)")
-        _check_names(self.current, CurrentSpec, "current parameter(s)")
-        return TypeAdapter(WindSpec).validate_python(self.wind), TypeAdapter(CurrentSpec).validate_python(self.current)
+        return (
+            _build(WindSpec, self.wind, "wind parameter(s)"),
+            _build(CurrentSpec, self.current, "current parameter(s)"),
+        )
 
     def build(self, rng: np.random.Generator) -> Environment:
         wind, current = self.specs()
@@ -237,12 +242,7 @@ class SensorsSpec(Model):
         return self
 
     def specs(self) -> dict[str, Any]:
-        out = {}
-        for name, cls in SENSOR_SPECS.items():
-            values = getattr(self, name)
-            _check_names(values, cls, f"{name} parameter(s)")
-            out[name] = TypeAdapter(cls).validate_python(values)
-        return out
+        return {name: _build(cls, getattr(self, name), f"{name} parameter(s)") for name, cls in SENSOR_SPECS.items()}
 
 
 class Origin(Model):
