@@ -1,0 +1,497 @@
+"""bob_autonomy/ekf.py: the buoy and eBot EKFs on filterpy.
+
+The truth is simulated here with simple kinematics, independent of the filter:
+a buoy of mass 35 kg (with added mass) pushed by a known, slowly turning thrust
+against the nominal water drag (5 w + 40 |w| w N, w the velocity through the
+water) in a constant 0.15 m/s current, its heading wandering sinusoidally.
+Sensors: GPS 5 Hz (2 m per axis, ground velocity 0.1 m/s), compass 10 Hz
+(2 deg), IMU 50 Hz (accelerometer in the body frame, 0.02 m/s^2; gyro 0.005
+rad/s). Every run is seeded. Frames: x east, y north; heading from east, CCW.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from bob_autonomy.ekf import (
+    BuoyEkf,
+    BuoyEkfBank,
+    EbotEkf,
+    EbotEkfBank,
+    EbotEkfParams,
+    wrap_angle,
+)
+
+DT_S = 0.02  # IMU period (50 Hz); compass every 5th step (10 Hz), GPS every 10th (5 Hz)
+MASS_KG, C1, C2 = 35.0, 5.0, 40.0  # the nominal buoy (velocity_control.BuoyModel)
+CURRENT_MPS = 0.15 * np.array([math.cos(math.radians(30.0)), math.sin(math.radians(30.0))])
+GPS_SIGMA_M, GPS_VEL_SIGMA_MPS = 2.0, 0.1
+COMPASS_SIGMA_RAD = math.radians(2.0)
+ACCEL_SIGMA_MPS2, GYRO_SIGMA_RADPS = 0.02, 0.005
+
+
+def thrust_at(t: float) -> np.ndarray:
+    """World-frame thrust command, N: 12 N turning once every 90 s (about 0.49 m/s through the water)."""
+    angle = 2.0 * math.pi * t / 90.0
+    return 12.0 * np.array([math.cos(angle), math.sin(angle)])
+
+
+def heading_at(t: float) -> tuple[float, float]:
+    """(heading, yaw rate) of the wandering hull."""
+    w = 2.0 * math.pi / 50.0
+    return 0.4 + 0.8 * math.sin(w * t), 0.8 * w * math.cos(w * t)
+
+
+def accel_world(vx: float, vy: float, t: float) -> tuple[float, float]:
+    """Truth: (T - (c1 + c2 |w|) w) / M, w = v - current."""
+    wx, wy = vx - CURRENT_MPS[0], vy - CURRENT_MPS[1]
+    drag = C1 + C2 * math.hypot(wx, wy)
+    angle = 2.0 * math.pi * t / 90.0
+    return (12.0 * math.cos(angle) - drag * wx) / MASS_KG, (12.0 * math.sin(angle) - drag * wy) / MASS_KG
+
+
+def body(vector: np.ndarray, heading: float) -> np.ndarray:
+    c, s = math.cos(heading), math.sin(heading)
+    return np.array([c * vector[0] + s * vector[1], -s * vector[0] + c * vector[1]])
+
+
+@dataclass
+class Run:
+    """What a simulated run recorded, one row per 50 Hz step (t, truth, estimate, covariance checks)."""
+
+    t: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    heading: np.ndarray
+    est_position: np.ndarray
+    est_heading: np.ndarray
+    est_drift: np.ndarray
+    pos_trace: np.ndarray
+    min_eig: np.ndarray
+    asymmetry: np.ndarray
+    gps_t: np.ndarray
+    gps_error: np.ndarray  # raw fix minus truth (k, 2)
+    gps_est_error: np.ndarray  # estimate right after the fix minus truth (k, 2)
+    outcomes: dict = field(default_factory=dict)  # t -> outcome of the GPS fix at t
+
+
+def simulate(
+    duration_s: float,
+    seed: int,
+    *,
+    accel: bool = True,
+    thrust_known: bool = True,
+    gps_velocity: bool = True,
+    outage: tuple[float, float] | None = None,
+    gps_offset=None,  # callable t -> (2,) extra GPS error, m
+    ekf: BuoyEkf | None = None,
+    check_covariance: bool = False,
+) -> tuple[BuoyEkf, Run]:
+    rng = np.random.default_rng(seed)
+    f = BuoyEkf() if ekf is None else ekf
+    px, py = 10.0, -5.0
+    vx, vy = CURRENT_MPS
+    rec: dict[str, list] = {k: [] for k in Run.__dataclass_fields__ if k != "outcomes"}
+    outcomes = {}
+    n = round(duration_s / DT_S)
+    for k in range(n + 1):
+        t = k * DT_S
+        if k:  # truth: midpoint integration of M dv/dt = T - drag(v - current), in 2 sub-steps
+            h = DT_S / 2
+            for j in range(2):
+                tj = t - DT_S + j * h
+                ax, ay = accel_world(vx, vy, tj)
+                mx, my = vx + 0.5 * h * ax, vy + 0.5 * h * ay
+                ax, ay = accel_world(mx, my, tj + 0.5 * h)
+                px, py, vx, vy = px + h * mx, py + h * my, vx + h * ax, vy + h * ay
+        p, v = np.array([px, py]), np.array([vx, vy])
+        psi, rate = heading_at(t)
+        a_body = body(np.array(accel_world(vx, vy, t)), psi) + ACCEL_SIGMA_MPS2 * rng.standard_normal(2)
+        f.predict(t, a_body if accel else None, thrust_at(t) if thrust_known else None)
+        if k % 5 == 0:
+            f.update_compass(t, float(wrap_angle(psi + COMPASS_SIGMA_RAD * rng.standard_normal())))
+            f.update_gyro(t, rate + GYRO_SIGMA_RADPS * rng.standard_normal())
+        if k % 10 == 0 and not (outage and outage[0] <= t < outage[1]):
+            error = GPS_SIGMA_M * rng.standard_normal(2)
+            if gps_offset is not None:
+                error = error + gps_offset(t)
+            vel = v + GPS_VEL_SIGMA_MPS * rng.standard_normal(2) if gps_velocity else None
+            outcomes[round(t, 6)] = f.update_gps(t, p + error, vel)
+            rec["gps_t"].append(t)
+            rec["gps_error"].append(error)
+            rec["gps_est_error"].append(f.estimate(t)[0] - p)
+        pos, _, head = f.estimate(t)
+        if check_covariance:
+            cov = f.covariance
+            rec["min_eig"].append(np.linalg.eigvalsh(cov).min())
+            rec["asymmetry"].append(np.abs(cov - cov.T).max())
+        rec["t"].append(t)
+        rec["position"].append(p.copy())
+        rec["velocity"].append(v.copy())
+        rec["heading"].append(psi)
+        rec["est_position"].append(pos)
+        rec["est_heading"].append(head)
+        rec["est_drift"].append(f.drift())
+        rec["pos_trace"].append(f.position_covariance_trace())
+    arrays = {k: np.array(val) for k, val in rec.items()}
+    return f, Run(**arrays, outcomes=outcomes)
+
+
+def rms(errors: np.ndarray) -> float:
+    """Root mean square of the norms of (k, 2) errors (or of (k,) scalars)."""
+    e = np.asarray(errors)
+    return float(np.sqrt(np.mean(np.sum(e.reshape(len(e), -1) ** 2, axis=1))))
+
+
+@pytest.fixture(scope="module")
+def nominal() -> tuple[BuoyEkf, Run]:
+    return simulate(90.0, seed=1, check_covariance=True)
+
+
+# ---------------------------------------------------------------- buoy accuracy
+
+
+def test_position_rms_at_most_half_the_raw_gps_error(nominal) -> None:
+    _, run = nominal
+    settled = run.gps_t >= 10.0
+    raw, est = rms(run.gps_error[settled]), rms(run.gps_est_error[settled])
+    assert raw == pytest.approx(2.0 * math.sqrt(2.0), rel=0.1)  # the 2 m per axis noise we drew
+    assert est <= 0.5 * raw, (est, raw)
+
+
+def test_heading_rms_under_3_degrees(nominal) -> None:
+    _, run = nominal
+    settled = run.t >= 5.0
+    err = wrap_angle(run.est_heading[settled] - run.heading[settled])
+    assert math.degrees(rms(err)) < 3.0
+
+
+def test_drift_estimate_within_5_cm_per_s_after_60_s(nominal) -> None:
+    _, run = nominal
+    after = run.t >= 60.0
+    err = np.hypot(*(run.est_drift[after] - CURRENT_MPS).T)
+    assert err.max() < 0.05, err.max()
+
+
+def test_covariance_symmetric_positive_definite_after_every_step(nominal) -> None:
+    f, run = nominal
+    assert run.asymmetry.max() == 0.0  # symmetrised after every prediction and update
+    assert run.min_eig.min() > 0.0
+    assert np.isfinite(run.est_position).all() and np.isfinite(run.est_heading).all()
+    assert f.gated <= 3 and f.failures == 0 and f.rejected == 0  # a clean run: at most chance gating
+
+
+def test_drift_observable_from_thrust_alone_without_accelerometer() -> None:
+    # No IMU: the drag model is the process model, v relaxes towards drift + thrust effect.
+    _, run = simulate(45.0, seed=2, accel=False)
+    after = run.t >= 30.0
+    assert np.hypot(*(run.est_drift[after] - CURRENT_MPS).T).max() < 0.05
+    assert rms(run.gps_est_error[run.gps_t >= 10.0]) <= 0.5 * rms(run.gps_error[run.gps_t >= 10.0])
+
+
+def test_without_thrust_command_the_drift_is_not_observable() -> None:
+    # Documented: no thrust, no drag model: the drift stays a random walk, its variance only grows.
+    f10, _ = simulate(10.0, seed=3, thrust_known=False)
+    f20, _ = simulate(20.0, seed=3, thrust_known=False)
+    var10, var20 = f10.covariance[6, 6], f20.covariance[6, 6]
+    assert var20 > var10 > 0.3**2  # above the 0.3 m/s prior, growing
+
+
+# ---------------------------------------------------------------- robustness
+
+
+def test_100_m_gps_jump_is_gated() -> None:
+    jump_t = 12.0
+    f, run = simulate(16.0, seed=5, gps_offset=lambda t: np.array([100.0, 0.0]) if abs(t - jump_t) < 1e-9 else 0.0)
+    assert run.outcomes[jump_t] == "gated"
+    assert f.gated == 1
+    i = int(np.flatnonzero(np.isclose(run.t, jump_t))[0])
+    before = run.est_position[i - 1] + (run.est_position[i - 1] - run.est_position[i - 2])
+    assert np.hypot(*(run.est_position[i] - before)) < 1.0  # moved as it was moving, not towards the jump
+    assert np.hypot(*(run.est_position[-1] - run.position[-1])) < 3.0
+
+
+def test_persistent_gps_shift_resets_after_ten_gated_fixes() -> None:
+    # A filter that has lost track must not lock itself out: 10 gated fixes in a row re-initialise position.
+    f, run = simulate(20.0, seed=6, gps_offset=lambda t: np.array([0.0, 150.0]) if t >= 12.0 else 0.0)
+    assert f.gated == 9 and f.resets == 1
+    assert run.outcomes[round(12.0 + 9 * 0.2, 6)] == "reset"
+    shifted = run.position[-1] + np.array([0.0, 150.0])
+    assert np.hypot(*(run.est_position[-1] - shifted)) < 3.0
+
+
+def test_nan_and_inf_readings_rejected_counted_never_fused() -> None:
+    f, _ = simulate(6.0, seed=7)
+    state, cov, t = f.state, f.covariance, f.t_s
+    outcomes = [
+        f.update_gps(6.0, [math.nan, 0.0]),
+        f.update_gps(6.0, [1.0, 2.0], [math.inf, 0.0]),
+        f.update_gps(math.nan, [1.0, 2.0]),
+        f.update_compass(6.0, math.nan),
+        f.update_gyro(6.0, -math.inf),
+        f.predict(6.02, [math.nan, 0.0]),
+        f.predict(6.02, [0.0, 0.0], [math.nan, 1.0]),
+        f.predict(math.inf),
+    ]
+    assert outcomes == ["rejected"] * 8
+    assert f.rejected == 8
+    np.testing.assert_array_equal(f.state, state)
+    np.testing.assert_array_equal(f.covariance, cov)
+    assert f.t_s == t
+    position, velocity, heading = f.estimate(7.0)
+    assert np.isfinite(position).all() and np.isfinite(velocity).all() and math.isfinite(heading)
+
+
+def test_30_s_gps_outage_dead_reckons_and_recovers() -> None:
+    start, end = 15.0, 45.0
+    f, run = simulate(55.0, seed=8, outage=(start, end))
+    during = (run.t >= start) & (run.t < end)
+    trace = run.pos_trace[during]
+    assert np.all(np.diff(trace) >= 0.0)  # grows at every step of the outage (dead reckoning)
+    assert trace[-1] > 4.0 * trace[0]
+    error = np.hypot(*(run.est_position - run.position).T)
+    assert error[during].max() < 3.0  # bounded: velocity from the accelerometer, drag model and drift
+    after = run.t >= end + 5.0
+    assert error[after].max() < 2.5 and run.pos_trace[after].max() < trace[0] * 2.0  # recovered
+    assert f.gated <= 2
+
+
+def test_heading_wraps_across_pi() -> None:
+    f = BuoyEkf(position_m=[0.0, 0.0])
+    rng = np.random.default_rng(9)
+    for k in range(200):  # hull pointing west: readings straddle +pi / -pi
+        t = 0.1 * k
+        f.predict(t)
+        f.update_compass(t, float(wrap_angle(math.pi + COMPASS_SIGMA_RAD * rng.standard_normal())))
+        head = f.estimate()[2]
+        assert -math.pi < head <= math.pi
+        assert abs(wrap_angle(head - math.pi)) < math.radians(8.0)
+    assert f.gated == 0
+    assert abs(wrap_angle(f.estimate()[2] - math.pi)) < math.radians(1.5)
+
+
+def test_out_of_order_gps_is_fused_by_replay_exactly_as_in_order() -> None:
+    warm, _ = simulate(10.0, seed=10)
+    snapshot = warm._snapshot()
+
+    def fresh() -> BuoyEkf:
+        f = BuoyEkf()
+        f._restore(snapshot)
+        return f
+
+    in_order, late = fresh(), fresh()
+    events = [(10.0 + 0.02 * k, [0.05, -0.02], thrust_at(10.0 + 0.02 * k)) for k in range(1, 11)]
+    fix_t, fix = 10.1, (np.array([14.0, -3.0]), np.array([0.3, 0.1]))
+    for t, a, thrust in events:  # in order: the fix between the predictions at 10.08 and 10.10
+        if abs(t - 10.1) < 1e-9:
+            in_order.update_gps(fix_t - 0.01, *fix)
+        in_order.predict(t, a, thrust)
+        late.predict(t, a, thrust)
+    in_order.update_compass(10.2, 0.5)
+    late.update_compass(10.2, 0.5)
+    assert late.update_gps(fix_t - 0.01, *fix) == "fused"  # delivered 0.11 s after it was measured
+    np.testing.assert_allclose(late.state, in_order.state, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(late.covariance, in_order.covariance, rtol=0, atol=1e-12)
+    assert late.t_s == in_order.t_s == 10.2 and late.late == 0
+
+
+def test_reading_older_than_the_replay_window_is_rejected_as_late() -> None:
+    f, _ = simulate(4.0, seed=11)
+    state = f.state
+    assert f.update_gps(2.5, [0.0, 0.0]) == "late"  # 1.5 s old, window 1 s
+    assert f.update_compass(1.0, 0.0) == "late"
+    assert f.late == 2
+    np.testing.assert_array_equal(f.state, state)
+
+
+def test_estimate_is_finite_before_the_first_fix() -> None:
+    f = BuoyEkf()
+    f.predict(0.0, [0.1, 0.0])
+    f.predict(1.0, [0.1, 0.0])
+    pos, vel, head = f.estimate(2.0)
+    assert np.isfinite(pos).all() and np.isfinite(vel).all() and math.isfinite(head)
+    assert not f.initialized
+    assert f.update_gps(1.5, [500.0, 20.0]) == "init"  # the first fix sets position, however far
+    assert f.update_compass(None, 1.0) == "init"
+    assert f.initialized
+    np.testing.assert_allclose(f.estimate()[0], [500.0, 20.0])
+
+
+# ---------------------------------------------------------------- eBot
+
+
+WHEEL_BASE_M, METRES_PER_TICK = 0.1, 2.0 * math.pi * 0.03 / 360
+
+
+def square_ticks(rate_hz: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times, cumulative ticks (k, 2), true headings) for 1 m sides at 0.2 m/s and in-place 90 deg turns."""
+    dt = 1.0 / rate_hz
+    wheels, headings = [np.zeros(2)], [0.0]
+    travel, heading = np.zeros(2), 0.0
+    for _ in range(4):
+        for _ in range(round(1.0 / 0.2 / dt)):  # straight: both wheels 0.2 m/s
+            travel = travel + 0.2 * dt
+            wheels.append(travel.copy())
+            headings.append(heading)
+        turn = math.pi / 2.0
+        steps = 16
+        for _ in range(steps):  # in place, counter-clockwise
+            d = 0.5 * WHEEL_BASE_M * turn / steps
+            travel = travel + np.array([-d, d])
+            heading += turn / steps
+            wheels.append(travel.copy())
+            headings.append(heading)
+    times = np.arange(len(wheels)) * dt
+    ticks = np.floor(np.array(wheels) / METRES_PER_TICK).astype(np.int64)
+    return times, ticks, np.array(headings)
+
+
+def test_ebot_dead_reckoning_round_a_square_returns_near_the_start() -> None:
+    times, ticks, _ = square_ticks()
+    f = EbotEkf([1.0, 2.0], 0.0, WHEEL_BASE_M, METRES_PER_TICK)
+    traces = []
+    for t, k in zip(times, ticks, strict=True):
+        f.update_encoders(t, k)
+        traces.append(f.position_covariance_trace())
+    pos, _, head = f.estimate()
+    assert np.hypot(*(pos - [1.0, 2.0])) < 0.03  # 4 m of travel; only tick quantisation
+    assert abs(wrap_angle(head - 2.0 * math.pi)) < math.radians(2.0)
+    assert traces[-1] > 2.0 * traces[0]  # no correction: the uncertainty grows along the path
+    assert np.linalg.eigvalsh(f.covariance).min() > 0.0
+
+
+def test_ebot_gyro_replaces_the_wheel_heading_change() -> None:
+    times, ticks, headings = square_ticks()
+    f = EbotEkf([0.0, 0.0], 0.0, WHEEL_BASE_M, METRES_PER_TICK)
+    for i, (t, k) in enumerate(zip(times, ticks, strict=True)):
+        rate = (headings[i] - headings[i - 1]) / (times[1] - times[0]) if i else 0.0
+        f.update_encoders(t, k, rate)
+    assert np.hypot(*f.estimate()[0]) < 0.03
+    assert abs(wrap_angle(f.estimate()[2])) < 1e-9  # the exact gyro rates give the exact heading
+
+
+def test_ebot_compass_corrects_an_initial_heading_error() -> None:
+    rng = np.random.default_rng(12)
+    true_heading = 0.5
+    f = EbotEkf([0.0, 0.0], true_heading + math.radians(20.0), WHEEL_BASE_M, METRES_PER_TICK,
+                EbotEkfParams(heading_sigma_rad=0.5))  # fmt: skip
+    travel = 0.0
+    for k in range(101):  # 10 s straight at 0.1 m/s, compass at 10 Hz
+        t = 0.1 * k
+        travel += 0.01
+        f.update_encoders(t, np.floor(np.array([travel, travel]) / METRES_PER_TICK).astype(np.int64))
+        f.update_compass(t, true_heading + COMPASS_SIGMA_RAD * rng.standard_normal())
+    assert abs(math.degrees(wrap_angle(f.estimate()[2] - true_heading))) < 1.5
+    assert f.gated == 0
+
+
+def test_ebot_position_fix_fused_and_wild_fix_gated() -> None:
+    f = EbotEkf([0.0, 0.0], 0.0, WHEEL_BASE_M, METRES_PER_TICK, EbotEkfParams(position_sigma_m=0.5))
+    f.update_encoders(0.0, [0, 0])
+    assert f.update_position(0.1, [0.3, -0.2], 0.1) == "fused"
+    pos = f.estimate()[0]
+    assert 0.25 < pos[0] < 0.3 and -0.2 < pos[1] < -0.15  # most of the way to the precise fix
+    assert f.position_covariance_trace() < 2 * 0.1**2
+    assert f.update_position(0.2, [5.0, 5.0], 0.1) == "gated"
+    np.testing.assert_array_equal(f.estimate()[0], pos)
+    assert f.update_position(0.3, [math.nan, 0.0], 0.1) == "rejected"
+    assert f.update_position(0.3, [0.0, 0.0], -1.0) == "rejected"
+    assert f.update_compass(0.3, math.inf) == "rejected"
+    assert f.update_encoders(math.nan, [1, 1]) == "rejected"
+    assert f.update_encoders(0.4, [1, 1], math.nan) == "rejected"
+    assert (f.rejected, f.gated) == (5, 1)
+    assert np.isfinite(f.state).all()
+
+
+def test_ebot_late_compass_replayed_between_encoder_readings() -> None:
+    times, ticks, _ = square_ticks()
+    a = EbotEkf([0.0, 0.0], 0.0, WHEEL_BASE_M, METRES_PER_TICK)
+    b = EbotEkf([0.0, 0.0], 0.0, WHEEL_BASE_M, METRES_PER_TICK)
+    for i in range(60):
+        if i == 55:
+            a.update_compass(times[54] + 0.05, 0.02)
+        a.update_encoders(times[i], ticks[i])
+        b.update_encoders(times[i], ticks[i])
+    assert b.update_compass(times[54] + 0.05, 0.02) == "fused"  # 0.45 s late
+    np.testing.assert_allclose(b.state, a.state, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.covariance, a.covariance, rtol=0, atol=1e-12)
+    assert b.update_compass(times[40], 0.02) == "late"
+
+
+# ---------------------------------------------------------------- banks
+
+
+def test_buoy_bank_gives_the_single_filters_results() -> None:
+    rng = np.random.default_rng(13)
+    n = 3
+    bank = BuoyEkfBank(n)
+    singles = [BuoyEkf() for _ in range(n)]
+    agents = np.arange(n)
+    for k in range(150):
+        t = 0.02 * k
+        accel = 0.05 * rng.standard_normal((n, 2))
+        thrust = np.tile(thrust_at(t), (n, 1))
+        bank.predict(agents, np.full(n, t), accel, thrust)
+        for i in range(n):
+            singles[i].predict(t, accel[i], thrust[i])
+        if k % 5 == 0:
+            heading = rng.uniform(-math.pi, math.pi, n)
+            gyro = 0.01 * rng.standard_normal(n)
+            bank.update_compass(agents, heading, np.full(n, t))
+            bank.update_gyro(agents, np.full(n, t), gyro)
+            for i in range(n):
+                singles[i].update_compass(t, heading[i])
+                singles[i].update_gyro(t, gyro[i])
+        if k % 10 == 0:
+            rows = np.array([2, 0])  # a subset of the agents, in any order
+            xy = 3.0 * rng.standard_normal((2, 2)) + [[100.0, 0.0], [0.0, 0.0]]
+            vel = 0.1 * rng.standard_normal((2, 2))
+            bank.update_gps(rows, np.full(2, t - 0.01), xy, vel)  # 0.01 s late: replayed
+            for j, i in enumerate(rows):
+                singles[i].update_gps(t - 0.01, xy[j], vel[j])
+    est = bank.estimate(3.5)
+    for i, f in enumerate(singles):
+        pos, vel, head = f.estimate(3.5)
+        np.testing.assert_array_equal(est.position[i], pos)
+        np.testing.assert_array_equal(est.velocity[i], vel)
+        assert est.heading[i] == head
+        np.testing.assert_array_equal(bank.drift()[i], f.drift())
+        assert bank.covariance_trace()[i] == f.position_covariance_trace()
+    assert est.position.shape == (n, 2) and est.heading.shape == (n,) and bank.drift().shape == (n, 2)
+    assert np.isfinite(est.position).all()  # agent 1 never had a fix: its prior, not NaN
+    np.testing.assert_array_equal(bank.initialized(), [True, False, True])
+    bank.update_gps(np.array([0]), np.array([math.nan]), np.array([[0.0, 0.0]]))
+    assert bank.rejected == 1
+    assert bank.late == sum(f.late for f in singles) == 2  # the first fixes (t = -0.01) predate the filters' clock
+
+
+def test_ebot_bank_gives_the_single_filters_results() -> None:
+    times, ticks, _ = square_ticks()
+    rng = np.random.default_rng(14)
+    start = np.array([[0.0, 0.0], [1.0, 1.0]])
+    heading0 = np.array([0.0, 0.3])
+    bank = EbotEkfBank(start, heading0, WHEEL_BASE_M, METRES_PER_TICK)
+    singles = [EbotEkf(start[i], heading0[i], WHEEL_BASE_M, METRES_PER_TICK) for i in range(2)]
+    agents = np.arange(2)
+    for t, k in zip(times, ticks, strict=True):
+        both = np.stack([k, k + 3])
+        compass = rng.uniform(-0.1, 0.1, 2)
+        bank.update_encoders(agents, np.full(2, t), both)
+        bank.update_compass(agents, compass, np.full(2, t))
+        for i in range(2):
+            singles[i].update_encoders(t, both[i])
+            singles[i].update_compass(t, compass[i])
+    bank.update_position(np.array([1]), np.array([times[-1]]), np.array([[1.0, 1.1]]), np.array([0.2]))
+    singles[1].update_position(times[-1], [1.0, 1.1], 0.2)
+    est = bank.estimate(times[-1])
+    for i, f in enumerate(singles):
+        pos, vel, head = f.estimate()
+        np.testing.assert_array_equal(est.position[i], pos)
+        np.testing.assert_array_equal(est.velocity[i], vel)
+        assert est.heading[i] == head
+        assert bank.covariance_trace()[i] == f.position_covariance_trace()
+    assert bank.gated == sum(f.gated for f in singles)
