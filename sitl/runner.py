@@ -43,9 +43,36 @@ def simulate(scenario: Scenario, progress: bool = False) -> RunResult:
     bar.close()
     metrics = METRICS[scenario.metrics.kind](fleet, recorder, dict(scenario.metrics.params))
     metrics = {"scenario": scenario.name, "seed": scenario.seed, "duration_s": scenario.duration_s, **metrics}
+    if scenario.fidelity == "physics":
+        metrics["estimation"] = estimation_errors(recorder)
     medium = fleet.medium
     metrics["network"] = {"sent": medium.sent, "delivered": medium.delivered, "dropped": medium.dropped}
     return RunResult(fleet, recorder, metrics)
+
+
+def estimation_errors(recorder: Recorder) -> dict:
+    """How far what the agents believed was from the truth, over every logged frame, per body kind.
+
+    position_rms_m, heading_rms_deg, and position_max_m.
+    """
+    out: dict = {}
+    for kind in sorted(set(recorder.body_names)):
+        errors, heading_errors = [], []
+        for f in recorder.frames:
+            rows = [k for k, a in enumerate(f.agents.tolist()) if recorder.body_names[a] == kind]
+            if not rows or f.estimate is None:
+                continue
+            est = f.estimate[rows]
+            errors.append(np.hypot(*(est[:, :2] - f.position[rows]).T))
+            heading_errors.append(np.mod(est[:, 2] - f.heading[rows] + np.pi, 2 * np.pi) - np.pi)
+        if errors:
+            e, h = np.concatenate(errors), np.concatenate(heading_errors)
+            out[kind] = {
+                "position_rms_m": float(np.sqrt(np.mean(e**2))),
+                "position_max_m": float(e.max()),
+                "heading_rms_deg": float(np.degrees(np.sqrt(np.mean(h**2)))),
+            }
+    return out
 
 
 def _body_names(fleet: LockstepFleet) -> list[str]:
