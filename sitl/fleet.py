@@ -89,6 +89,9 @@ def make_bodies(
         rng,
         thrust,
         scenario.sensors.specs(),
+        estimator=scenario.vessel.estimator,
+        controller=scenario.vessel.controller,
+        dt_s=scenario.dt_s,
     )
 
 

@@ -245,6 +245,19 @@ class SensorsSpec(Model):
         return {name: _build(cls, getattr(self, name), f"{name} parameter(s)") for name, cls in SENSOR_SPECS.items()}
 
 
+class VesselSpec(Model):
+    """The autonomy on each vessel (physics fidelity): which pose estimator and which controller.
+
+    estimator: "simple" (alpha-beta GPS tracker / odometry) or "ekf" (filterpy
+    EKFs with a drift state). controller: "simple" (proportional with drag
+    feed-forward) or "mpc" (casadi QP). The MPC's horizon step is the
+    scenario's dt_s.
+    """
+
+    estimator: Literal["simple", "ekf"] = "simple"
+    controller: Literal["simple", "mpc"] = "simple"
+
+
 class Origin(Model):
     """The swarm's shared origin (WGS-84 degrees); default: Bedok Reservoir, Singapore."""
 
@@ -283,6 +296,7 @@ class Scenario(Model):
     origin: Origin = Origin()
     environment: EnvironmentSpec = EnvironmentSpec()
     sensors: SensorsSpec = SensorsSpec()
+    vessel: VesselSpec = VesselSpec()
     resize_group: str | None = Field(default=None, description="group that --agents resizes (default: the first)")
     world: WorldSpec = WorldSpec()
     network: NetworkSpec = NetworkSpec()
