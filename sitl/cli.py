@@ -26,6 +26,8 @@ def _parser() -> argparse.ArgumentParser:
         choices=["kinematic", "physics"],
         help="kinematic bodies and perfect knowledge, or dynamics, sensors and estimates (default: the scenario's)",
     )
+    run.add_argument("--estimator", choices=["simple", "ekf"], help="each vessel's pose estimator (physics)")
+    run.add_argument("--controller", choices=["simple", "mpc"], help="each vessel's velocity controller (physics)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -37,7 +39,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:24s} {description}")
         return 0
     try:
-        scenario = load_scenario(args.scenario).with_overrides(args.agents, args.seed, args.duration, args.fidelity)
+        scenario = load_scenario(args.scenario).with_overrides(
+            args.agents, args.seed, args.duration, args.fidelity, args.estimator, args.controller
+        )
     except ScenarioError as error:
         print(f"bob-sitl: {error}", file=sys.stderr)
         return 2

@@ -249,13 +249,13 @@ class VesselSpec(Model):
     """The autonomy on each vessel (physics fidelity): which pose estimator and which controller.
 
     estimator: "simple" (alpha-beta GPS tracker / odometry) or "ekf" (filterpy
-    EKFs with a drift state). controller: "simple" (proportional with drag
-    feed-forward) or "mpc" (casadi QP). The MPC's horizon step is the
-    scenario's dt_s.
+    EKFs with a drift state; several times slower). controller: "mpc" (casadi
+    QP, the default) or "simple" (proportional with drag feed-forward). The
+    MPC's horizon step is the scenario's dt_s.
     """
 
     estimator: Literal["simple", "ekf"] = "simple"
-    controller: Literal["simple", "mpc"] = "simple"
+    controller: Literal["simple", "mpc"] = "mpc"
 
 
 class Origin(Model):
@@ -326,11 +326,17 @@ class Scenario(Model):
         seed: int | None = None,
         duration_s: float | None = None,
         fidelity: str | None = None,
+        estimator: str | None = None,
+        controller: str | None = None,
     ) -> Scenario:
         """A copy with the command-line overrides applied (and validated)."""
         data = self.model_dump()
         if fidelity is not None:
             data["fidelity"] = fidelity
+        if estimator is not None:
+            data["vessel"]["estimator"] = estimator
+        if controller is not None:
+            data["vessel"]["controller"] = controller
         if seed is not None:
             data["seed"] = seed
         if duration_s is not None:
