@@ -107,9 +107,8 @@ class PhysicalBodies(KinematicBodies):
         self.t = -PRE_ROLL_S
         self.wind = np.zeros_like(self.position)
         self.current = np.zeros_like(self.position)
-        self.estimator_rejected = 0
         while self.t < -1e-9:
-            self._advance(np.zeros((len(self), 2)), np.full(len(self), np.nan), 0.1, World())
+            self.apply(np.zeros((len(self), 2)), np.full(len(self), np.nan), 0.1, World())
 
     def believed(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(position, heading, velocity) each vessel believes it has (estimates, not truth)."""
@@ -127,9 +126,6 @@ class PhysicalBodies(KinematicBodies):
 
     def apply(self, wish_velocity: FloatArray, wish_heading: FloatArray, dt: float, world: World) -> None:
         """One control step: controllers on the estimates, dynamics, environment, sensors, estimators."""
-        self._advance(wish_velocity, wish_heading, dt, world)
-
-    def _advance(self, wish_velocity: FloatArray, wish_heading: FloatArray, dt: float, world: World) -> None:
         estimate = self._estimate()
         b, e = self.buoys, self.ebots
         self.wind = self.environment.wind_at(self.position)
