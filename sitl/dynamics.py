@@ -66,6 +66,18 @@ def wrap_angle(angle_rad: FloatArray | float) -> FloatArray:
     return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=float), 2.0 * np.pi)
 
 
+def _init_planar_state(body, params, position: FloatArray, heading: FloatArray, rng: np.random.Generator) -> int:
+    """Set the state every planar body has (position, heading, velocity, yaw rate); return the body count."""
+    body.params = params
+    body.rng = rng
+    body.position_m = np.array(position, dtype=float).reshape(-1, 2)
+    n = body.position_m.shape[0]
+    body.heading_rad = wrap_angle(np.broadcast_to(np.asarray(heading, dtype=float), (n,)).copy())
+    body.velocity_mps = np.zeros((n, 2))
+    body.yaw_rate_radps = np.zeros(n)
+    return n
+
+
 def _phi1(x: FloatArray) -> FloatArray:
     """(1 - exp(-x)) / x, with its limit 1 at x = 0 (x >= 0)."""
     small = x < 1e-4
@@ -168,13 +180,7 @@ class BuoyDynamics:
     """
 
     def __init__(self, params: BuoyParams, position: FloatArray, heading: FloatArray, rng: np.random.Generator) -> None:
-        self.params = params
-        self.rng = rng
-        self.position_m = np.array(position, dtype=float).reshape(-1, 2)
-        n = self.position_m.shape[0]
-        self.heading_rad = wrap_angle(np.broadcast_to(np.asarray(heading, dtype=float), (n,)).copy())
-        self.velocity_mps = np.zeros((n, 2))
-        self.yaw_rate_radps = np.zeros(n)
+        n = _init_planar_state(self, params, position, heading, rng)
         self.thrust_n = np.zeros((n, 2))
         self.thrust_angle_body_rad = np.zeros(n)
         self.acceleration_mps2 = np.zeros((n, 2))
@@ -351,13 +357,7 @@ class DiffDriveDynamics:
     def __init__(
         self, params: DiffDriveParams, position: FloatArray, heading: FloatArray, rng: np.random.Generator
     ) -> None:
-        self.params = params
-        self.rng = rng
-        self.position_m = np.array(position, dtype=float).reshape(-1, 2)
-        n = self.position_m.shape[0]
-        self.heading_rad = wrap_angle(np.broadcast_to(np.asarray(heading, dtype=float), (n,)).copy())
-        self.velocity_mps = np.zeros((n, 2))
-        self.yaw_rate_radps = np.zeros(n)
+        n = _init_planar_state(self, params, position, heading, rng)
         self.wheel_travel_m = np.zeros((n, 2))
         self.acceleration_mps2 = np.zeros((n, 2))
         self.active = np.ones(n, dtype=bool)
