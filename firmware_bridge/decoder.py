@@ -1,0 +1,390 @@
+"""Decode raw MAVLink telemetry bytes into typed readings.
+
+`TelemetryDecoder.feed(data)` takes whatever bytes a link delivered (any
+chunking: half frames, several frames, noise) and returns the readings of the
+frames completed by them. Nothing raises into the caller: noise, truncated
+frames, bad checksums and messages of ids the dialect does not know are
+counted in `TelemetryDecoder.counters` and skipped.
+
+Framing is done here (so that after a bad frame the search for the next one
+restarts one byte after the bad frame's start marker, rather than after the
+whole bad frame, whose length byte may itself be the corrupted one); the
+checksum and the payload decoding are pymavlink's (`MAVLink.decode` of the
+ardupilotmega MAVLink 2 dialect; MAVLink 1 frames are accepted too).
+
+Timestamps: every reading's `t_s` is the decoder's clock (default
+`time.monotonic`) read once per `feed` call, i.e. the local time of reception
+of the chunk. The vehicle's own boot-relative times (time_boot_ms, time_usec)
+are not used: they are on another clock. Frames and sign conventions: see
+docs/mavlink-mapping.md.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from firmware_bridge.readings import CompassReading, FloatArray, GpsFix, ImuReading, IntArray
+
+STANDARD_GRAVITY_MPS2 = 9.80665
+UINT16_MAX = 65535
+
+_V1 = mavlink.PROTOCOL_MARKER_V1
+_V2 = mavlink.PROTOCOL_MARKER_V2
+_SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+_SIGNATURE_LEN = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_MARKERS = (bytes([_V1]), bytes([_V2]))
+# A v2 header is 10 bytes, v1 6; both are followed by payload and a 2-byte CRC.
+_HEADER_LEN = {_V1: mavlink.HEADER_LEN_V1, _V2: mavlink.HEADER_LEN_V2}
+
+
+@dataclass(frozen=True, eq=False)
+class WheelDistance:
+    """Wheel travel from WHEEL_DISTANCE: agent indices (k,), reception times t_s (k,), and cumulative
+    distance_m (k, 2) (left, right) in metres, positive forward. (EncoderReading holds ticks; a stock
+    autopilot reports metres, so this is its own type.)"""
+
+    agents: IntArray
+    t_s: FloatArray
+    distance_m: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class Battery:
+    """Battery state from SYS_STATUS or BATTERY_STATUS: agent indices (k,), reception times t_s (k,),
+    voltage_v (k,) total pack voltage and remaining_pct (k,) 0..100, NaN where the autopilot reports unknown."""
+
+    agents: IntArray
+    t_s: FloatArray
+    voltage_v: FloatArray
+    remaining_pct: FloatArray
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """A HEARTBEAT: who sent it, its type, mode and whether it is armed (MAV_MODE_FLAG_SAFETY_ARMED)."""
+
+    t_s: float
+    system: int
+    component: int
+    mav_type: int
+    autopilot: int
+    base_mode: int
+    custom_mode: int
+    system_status: int
+    armed: bool
+
+
+@dataclass(frozen=True)
+class CommandAck:
+    """A COMMAND_ACK: the MAV_CMD acknowledged and its MAV_RESULT (0 = accepted)."""
+
+    t_s: float
+    command: int
+    result: int
+
+
+Reading = GpsFix | CompassReading | ImuReading | WheelDistance | Battery | Heartbeat | CommandAck
+
+
+@dataclass
+class DecoderCounters:
+    """What the decoder has seen. Every byte fed ends up in exactly one of: a frame counted in `decoded`
+    or `unknown` (`frame_bytes`), `skipped_bytes` (noise, bad frames, resynchronisation), or `pending_bytes`
+    (an incomplete frame awaiting more data); and every complete candidate frame (`received`) is exactly
+    one of `decoded`, `bad_crc`, `unknown` or `malformed`."""
+
+    bytes_fed: int = 0
+    received: int = 0
+    decoded: int = 0
+    bad_crc: int = 0
+    unknown: int = 0
+    malformed: int = 0
+    skipped_bytes: int = 0
+    frame_bytes: int = 0
+    pending_bytes: int = 0
+    no_fix: int = 0
+    other_system: int = 0
+    by_type: dict[str, int] = field(default_factory=dict)
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """Wrap an angle to (-pi, pi]."""
+    return math.pi - (math.pi - angle_rad) % (2.0 * math.pi)
+
+
+def heading_from_yaw(yaw_rad: float) -> float:
+    """Our heading (from east, counter-clockwise) from a MAVLink yaw (from north, clockwise), in (-pi, pi]."""
+    return wrap_angle(math.pi / 2.0 - yaw_rad)
+
+
+class TelemetryDecoder:
+    """Bytes in, typed readings out, for one vehicle (readings carry `agents = [agent]`).
+
+    `source_system`, when given, keeps only messages from that MAVLink system id (others are counted in
+    `counters.other_system`). `max_buffer` bounds the bytes held while waiting for a frame to complete.
+    """
+
+    def __init__(
+        self,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        agent: int = 0,
+        source_system: int | None = None,
+    ) -> None:
+        self.clock = clock
+        self.agent = agent
+        self.source_system = source_system
+        self.counters = DecoderCounters()
+        self._mav = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
+        self._buf = bytearray()
+        self._agents = np.array([agent], dtype=np.intp)
+
+    # -- framing ---------------------------------------------------------------------------------------
+
+    def feed(self, data: bytes) -> list[Reading]:
+        """Add received bytes; return the readings of the messages they complete, in stream order."""
+        readings: list[Reading] = []
+        try:
+            self._feed(bytes(data), readings)
+        except Exception:  # pragma: no cover - defensive: nothing may escape into the caller
+            self.counters.malformed += 1
+            self.counters.skipped_bytes += len(self._buf)
+            self._buf.clear()
+        self.counters.pending_bytes = len(self._buf)
+        return readings
+
+    def _feed(self, data: bytes, readings: list[Reading]) -> None:
+        c = self.counters
+        c.bytes_fed += len(data)
+        buf = self._buf
+        buf.extend(data)
+        t_s: float | None = None
+        pos = 0
+        n = len(buf)
+        while pos < n:
+            start = _next_marker(buf, pos)
+            if start < 0:
+                c.skipped_bytes += n - pos
+                pos = n
+                break
+            c.skipped_bytes += start - pos
+            pos = start
+            magic = buf[pos]
+            header_len = _HEADER_LEN[magic]
+            if n - pos < 3:
+                break  # need the length (and v2 flags) byte(s)
+            length = header_len + buf[pos + 1] + 2
+            if magic == _V2 and buf[pos + 2] & _SIGNED:
+                length += _SIGNATURE_LEN
+            if n - pos < length:
+                break  # incomplete: wait for more bytes
+            frame = bytearray(buf[pos : pos + length])
+            c.received += 1
+            verdict, msg = self._check(frame, magic, header_len, end=pos + length, n=n)
+            if verdict == "unknown":
+                c.unknown += 1
+            elif verdict != "ok":
+                if verdict == "bad_crc":
+                    c.bad_crc += 1
+                else:
+                    c.malformed += 1
+                # Resynchronise one byte on: the next frame may start inside this one.
+                c.skipped_bytes += 1
+                pos += 1
+                continue
+            c.frame_bytes += length
+            pos += length
+            if msg is None:
+                continue
+            c.decoded += 1
+            name = msg.get_type()
+            c.by_type[name] = c.by_type.get(name, 0) + 1
+            if self.source_system is not None and msg.get_srcSystem() != self.source_system:
+                c.other_system += 1
+                continue
+            if t_s is None:
+                t_s = float(self.clock())
+            try:
+                reading = self._convert(msg, t_s)
+            except (TypeError, ValueError, OverflowError, AttributeError, IndexError):
+                reading = None
+            if reading is not None:
+                readings.append(reading)
+        del buf[:pos]
+
+    def _check(self, frame: bytearray, magic: int, header_len: int, end: int, n: int):
+        """Classify one complete candidate frame: ("ok", message), ("unknown", None), ("bad_crc", None)
+        or ("malformed", None)."""
+        if magic == _V2:
+            incompat = frame[2]
+            if incompat & ~_SIGNED:
+                return "malformed", None
+            msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
+        else:
+            msg_id = frame[5]
+        msg_type = mavlink.mavlink_map.get(msg_id)
+        if msg_type is None:
+            # Without the message's CRC_EXTRA the checksum cannot be verified, so an unknown frame is only
+            # believed when another frame (or the end of the data so far) follows it; otherwise its marker
+            # is taken for noise.
+            if end == n or self._buf[end] in (_V1, _V2):
+                return "unknown", None
+            return "malformed", None
+        signature_len = _SIGNATURE_LEN if (magic == _V2 and frame[2] & _SIGNED) else 0
+        crc_end = len(frame) - signature_len
+        crc = frame[crc_end - 2] | (frame[crc_end - 1] << 8)
+        crcbuf = frame[1 : crc_end - 2]
+        crcbuf.append(msg_type.crc_extra)
+        if mavlink.x25crc(crcbuf).crc != crc:
+            return "bad_crc", None
+        try:
+            msg = self._mav.decode(frame)
+        except Exception:
+            return "malformed", None
+        return "ok", msg
+
+    # -- conversion ------------------------------------------------------------------------------------
+
+    def _convert(self, msg, t_s: float) -> Reading | None:
+        name = msg.get_type()
+        convert = _CONVERTERS.get(name)
+        if convert is None:
+            return None
+        return convert(self, msg, t_s)
+
+    def _rows(self, t_s: float) -> tuple[IntArray, FloatArray]:
+        return self._agents.copy(), np.array([t_s])
+
+    def _gps_raw_int(self, msg, t_s: float) -> GpsFix | None:
+        if msg.fix_type < 2:
+            self.counters.no_fix += 1
+            return None
+        velocity = None
+        if msg.vel != UINT16_MAX and msg.cog != UINT16_MAX:
+            speed = msg.vel / 100.0
+            course = math.radians(msg.cog / 100.0)  # from north, clockwise
+            velocity = np.array([[speed * math.sin(course), speed * math.cos(course)]])
+        agents, times = self._rows(t_s)
+        return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
+
+    def _global_position_int(self, msg, t_s: float) -> GpsFix | None:
+        if msg.lat == 0 and msg.lon == 0:
+            self.counters.no_fix += 1  # the autopilot has no position (yet)
+            return None
+        agents, times = self._rows(t_s)
+        velocity = np.array([[msg.vy / 100.0, msg.vx / 100.0]])  # NED x north, y east -> east, north
+        return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
+
+    def _attitude(self, msg, t_s: float) -> CompassReading | None:
+        if not math.isfinite(msg.yaw):
+            return None
+        agents, times = self._rows(t_s)
+        return CompassReading(agents, times, np.array([heading_from_yaw(msg.yaw)]))
+
+    def _imu(self, msg, t_s: float) -> ImuReading:
+        # MAVLink body frame: x forward, y right, z down; ours: x forward, y left, yaw rate CCW (about up).
+        g = STANDARD_GRAVITY_MPS2 / 1000.0
+        agents, times = self._rows(t_s)
+        accel = np.array([[msg.xacc * g, -msg.yacc * g]])
+        return ImuReading(agents, times, accel, np.array([-msg.zgyro / 1000.0]))
+
+    def _wheel_distance(self, msg, t_s: float) -> WheelDistance | None:
+        if msg.count < 2:
+            return None
+        agents, times = self._rows(t_s)
+        return WheelDistance(agents, times, np.array([[float(msg.distance[0]), float(msg.distance[1])]]))
+
+    def _sys_status(self, msg, t_s: float) -> Battery:
+        voltage = math.nan if msg.voltage_battery == UINT16_MAX else msg.voltage_battery / 1000.0
+        remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
+        agents, times = self._rows(t_s)
+        return Battery(agents, times, np.array([voltage]), np.array([remaining]))
+
+    def _battery_status(self, msg, t_s: float) -> Battery:
+        cells = [v for v in msg.voltages if v != UINT16_MAX]
+        cells += [v for v in getattr(msg, "voltages_ext", ()) if v not in (0, UINT16_MAX)]
+        voltage = sum(cells) / 1000.0 if cells else math.nan
+        remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
+        agents, times = self._rows(t_s)
+        return Battery(agents, times, np.array([voltage]), np.array([remaining]))
+
+    def _heartbeat(self, msg, t_s: float) -> Heartbeat:
+        return Heartbeat(
+            t_s=t_s,
+            system=msg.get_srcSystem(),
+            component=msg.get_srcComponent(),
+            mav_type=msg.type,
+            autopilot=msg.autopilot,
+            base_mode=msg.base_mode,
+            custom_mode=msg.custom_mode,
+            system_status=msg.system_status,
+            armed=bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
+        )
+
+    def _command_ack(self, msg, t_s: float) -> CommandAck:
+        return CommandAck(t_s=t_s, command=msg.command, result=msg.result)
+
+
+_CONVERTERS: dict[str, Callable[[TelemetryDecoder, object, float], Reading | None]] = {
+    "GPS_RAW_INT": TelemetryDecoder._gps_raw_int,
+    "GLOBAL_POSITION_INT": TelemetryDecoder._global_position_int,
+    "ATTITUDE": TelemetryDecoder._attitude,
+    "SCALED_IMU": TelemetryDecoder._imu,
+    "RAW_IMU": TelemetryDecoder._imu,  # ArduPilot sends RAW_IMU scaled like SCALED_IMU (mG, mrad/s)
+    "WHEEL_DISTANCE": TelemetryDecoder._wheel_distance,
+    "SYS_STATUS": TelemetryDecoder._sys_status,
+    "BATTERY_STATUS": TelemetryDecoder._battery_status,
+    "HEARTBEAT": TelemetryDecoder._heartbeat,
+    "COMMAND_ACK": TelemetryDecoder._command_ack,
+}
+
+
+def _next_marker(buf: bytearray, pos: int) -> int:
+    """Index of the next MAVLink start marker (v1 or v2) at or after pos, or -1."""
+    a = buf.find(_MARKERS[0], pos)
+    b = buf.find(_MARKERS[1], pos)
+    if a < 0:
+        return b
+    if b < 0:
+        return a
+    return min(a, b)
+
+
+class HeartbeatWatch:
+    """Is the link alive? Silent when no HEARTBEAT has been seen for `timeout_s` (counted from construction
+    until the first one). Feed it the decoder's readings with `observe`, or call `beat` directly."""
+
+    def __init__(self, timeout_s: float, clock: Callable[[], float] = time.monotonic, *, system: int | None = None):
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s must be positive, got {timeout_s!r}")
+        self.timeout_s = float(timeout_s)
+        self.clock = clock
+        self.system = system
+        self.last_beat_s: float | None = None
+        self._since_s = float(clock())
+
+    def beat(self, t_s: float | None = None) -> None:
+        """Record a heartbeat received at t_s (default: now)."""
+        t = float(self.clock()) if t_s is None else float(t_s)
+        if self.last_beat_s is None or t > self.last_beat_s:
+            self.last_beat_s = t
+
+    def observe(self, readings: Iterable[object]) -> None:
+        """Record the heartbeats among decoder readings (of `system` only, when given)."""
+        for reading in readings:
+            if isinstance(reading, Heartbeat) and (self.system is None or reading.system == self.system):
+                self.beat(reading.t_s)
+
+    def silent_for_s(self) -> float:
+        """Seconds since the last heartbeat (or since construction, before the first)."""
+        reference = self._since_s if self.last_beat_s is None else self.last_beat_s
+        return float(self.clock()) - reference
+
+    def is_silent(self) -> bool:
+        return self.silent_for_s() > self.timeout_s
