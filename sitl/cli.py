@@ -9,6 +9,7 @@ from pathlib import Path
 
 from sitl.runner import run_to_directory
 from sitl.scenario import ScenarioError, load_scenario, packaged_scenarios
+from sitl.sweep import run_sweep
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -29,6 +30,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--estimator", choices=["simple", "ekf"], help="each vessel's pose estimator (physics)")
     run.add_argument("--controller", choices=["simple", "mpc"], help="each vessel's velocity controller (physics)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep = sub.add_parser("sweep", help="run a scenario over swarm sizes and seeds; plot metrics against size")
+    sweep.add_argument("scenario", metavar="NAME|FILE")
+    sweep.add_argument("--agents", type=int, nargs="+", required=True, help="swarm sizes")
+    sweep.add_argument("--runs", type=int, default=10, help="seeds per size (1..RUNS)")
+    sweep.add_argument("--plot", nargs="+", default=[], metavar="METRIC", help="scalar metrics to plot")
+    sweep.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/NAME-sweep)")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -38,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
         for name, description in packaged_scenarios().items():
             print(f"{name:24s} {description}")
         return 0
+    if args.command == "sweep":
+        return _sweep(args)
     try:
         scenario = load_scenario(args.scenario).with_overrides(
             args.agents, args.seed, args.duration, args.fidelity, args.estimator, args.controller
@@ -55,6 +65,24 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps(summary, indent=2))
     print(f"outputs in {out}/", file=sys.stderr)
     return 0 if result.metrics["passed"] else 1
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    try:
+        scenario = load_scenario(args.scenario)
+        rows = run_sweep(
+            scenario,
+            args.agents,
+            list(range(1, args.runs + 1)),
+            args.out or Path("runs") / f"{scenario.name}-sweep",
+            args.plot,
+            progress=not args.quiet,
+        )
+    except ScenarioError as error:
+        print(f"bob-sitl: {error}", file=sys.stderr)
+        return 2
+    print(f"{len(rows)} runs, {sum(r['passed'] for r in rows)} passed their criteria")
+    return 0
 
 
 if __name__ == "__main__":
