@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from tqdm import tqdm
@@ -16,6 +18,8 @@ from sitl.metrics import METRICS
 from sitl.plots import write_figures
 from sitl.recorder import Frame, Recorder
 from sitl.scenario import Scenario, scenario_to_toml
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -108,19 +112,32 @@ def run_to_directory(scenario: Scenario, out: Path, progress: bool = False) -> R
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not (out / "metrics.json").exists():
         raise FileExistsError(f"{out} exists, is not empty and is not a previous run's output; choose another --out")
+
+    def write(staging: Path) -> RunResult:
+        result = simulate(scenario, progress)
+        result.recorder.write_csv(staging / "trajectory.csv")
+        result.metrics["figures"] = write_figures(result.fleet, result.recorder, result.metrics, staging)
+        (staging / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+        (staging / "scenario.toml").write_text(scenario_to_toml(scenario))
+        return result
+
+    return write_atomically(out, write)
+
+
+def write_atomically(out: Path, write: Callable[[Path], T]) -> T:
+    """Call `write(staging)` on a fresh directory beside `out`, then move it to `out` (replacing it).
+
+    A failure anywhere leaves neither a half-written `out` nor the staging directory.
+    """
+    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        result = simulate(scenario, progress)
-        result.recorder.write_csv(staging / "trajectory.csv")
-        figures = write_figures(result.fleet, result.recorder, result.metrics, staging)
-        result.metrics["figures"] = figures
-        (staging / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
-        (staging / "scenario.toml").write_text(scenario_to_toml(scenario))
+        value = write(staging)
         if out.exists():
             shutil.rmtree(out)
         staging.rename(out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return result
+    return value

@@ -8,8 +8,6 @@ deviation over the seeds (sweep.png). Runs write no per-run outputs.
 from __future__ import annotations
 
 import csv
-import shutil
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -19,7 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from tqdm import tqdm
 
-from sitl.runner import simulate
+from sitl.runner import simulate, write_atomically
 from sitl.scenario import Scenario
 
 
@@ -34,22 +32,16 @@ def run_sweep(
         row = {"agents": n, "seed": seed, "passed": metrics["passed"]}
         row.update({k: v for k, v in metrics.items() if isinstance(v, int | float) and not isinstance(v, bool)})
         rows.append(row)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+
+    def write(staging: Path) -> None:
         columns = sorted({k for r in rows for k in r}, key=lambda k: (k not in ("agents", "seed", "passed"), k))
         with open(staging / "sweep.csv", "w", newline="", encoding="utf-8") as handle:
             writer = csv.DictWriter(handle, fieldnames=columns)
             writer.writeheader()
             writer.writerows(rows)
         _plot(rows, agents, plot_keys, scenario.name, staging / "sweep.png")
-        if out.exists():
-            shutil.rmtree(out)
-        staging.rename(out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+
+    write_atomically(out, write)
     return rows
 
 
