@@ -195,3 +195,49 @@ def set_mode(mode: str | int, target_system: int = 1, target_component: int = 1,
         0.0,
     )
     return _enc(encoder).pack(message)
+
+
+# -- the vehicle's side: what an autopilot makes of these commands -----------------------------------------
+
+
+def pwm_to_normalised(pwm: int) -> float:
+    """The inverse of `normalised_to_pwm`: an RC PWM (us) to [-1, 1]; 0 and UINT16_MAX (not overridden) give NaN."""
+    if pwm in (0, UINT16_MAX):
+        return math.nan
+    return min(1.0, max(-1.0, (int(pwm) - PWM_NEUTRAL) / PWM_SPAN))
+
+
+def rc_axes(message) -> tuple[float, float, float]:
+    """(steering, throttle, lateral) in [-1, 1] from a decoded RC_CHANNELS_OVERRIDE (NaN: not overridden)."""
+    channels = [message.chan1_raw, message.chan2_raw, message.chan3_raw, message.chan4_raw]
+    return tuple(pwm_to_normalised(channels[c - 1]) for c in (CHANNEL_STEERING, CHANNEL_THROTTLE, CHANNEL_LATERAL))
+
+
+def thrust_from_rc(message, max_thrust_n: float) -> tuple[float, float]:
+    """Body-frame thrust (x forward, y left; N) a vectored buoy applies for an RC_CHANNELS_OVERRIDE: the inverse
+    of `rc_override_for_thrust` (up to PWM quantization, 1/400 of the maximum); channels not overridden: 0."""
+    _steering, throttle, lateral = rc_axes(message)
+    x = 0.0 if math.isnan(throttle) else throttle * max_thrust_n
+    y = 0.0 if math.isnan(lateral) else -lateral * max_thrust_n
+    return x, y
+
+
+def wheels_from_rc(message, max_wheel_speed_mps: float) -> tuple[float, float]:
+    """(left, right) wheel speeds (m/s) a skid-steer rover applies for an RC_CHANNELS_OVERRIDE, by ArduPilot's
+    mixing (left = throttle + steering, right = throttle - steering, each clipped to [-1, 1]); the inverse of
+    `rc_override_for_wheels` up to PWM quantization."""
+    steering, throttle, _lateral = rc_axes(message)
+    throttle = 0.0 if math.isnan(throttle) else throttle
+    steering = 0.0 if math.isnan(steering) else steering
+    left = min(1.0, max(-1.0, throttle + steering))
+    right = min(1.0, max(-1.0, throttle - steering))
+    return left * max_wheel_speed_mps, right * max_wheel_speed_mps
+
+
+def wheels_from_manual_control(message, max_wheel_speed_mps: float) -> tuple[float, float]:
+    """(left, right) wheel speeds (m/s) for a MANUAL_CONTROL (z throttle, y steering, each -1000..1000)."""
+    throttle = 0.0 if message.z == 32767 else message.z / 1000.0
+    steering = 0.0 if message.y == 32767 else message.y / 1000.0
+    left = min(1.0, max(-1.0, throttle + steering))
+    right = min(1.0, max(-1.0, throttle - steering))
+    return left * max_wheel_speed_mps, right * max_wheel_speed_mps

@@ -150,21 +150,39 @@ class TelemetryDecoder:
     def feed(self, data: bytes) -> list[Reading]:
         """Add received bytes; return the readings of the messages they complete, in stream order."""
         readings: list[Reading] = []
+        t_s: float | None = None
+        for msg in self.feed_messages(data):
+            if self.source_system is not None and msg.get_srcSystem() != self.source_system:
+                self.counters.other_system += 1
+                continue
+            if t_s is None:
+                t_s = float(self.clock())
+            try:
+                reading = self._convert(msg, t_s)
+            except (TypeError, ValueError, OverflowError, AttributeError, IndexError):
+                reading = None
+            if reading is not None:
+                readings.append(reading)
+        return readings
+
+    def feed_messages(self, data: bytes) -> list:
+        """Add received bytes; return the pymavlink messages they complete (checksums verified), in stream
+        order, of any type and any source system. For the vehicle side, which reads commands, not telemetry."""
+        messages: list = []
         try:
-            self._feed(bytes(data), readings)
+            self._feed(bytes(data), messages)
         except Exception:  # pragma: no cover - defensive: nothing may escape into the caller
             self.counters.malformed += 1
             self.counters.skipped_bytes += len(self._buf)
             self._buf.clear()
         self.counters.pending_bytes = len(self._buf)
-        return readings
+        return messages
 
-    def _feed(self, data: bytes, readings: list[Reading]) -> None:
+    def _feed(self, data: bytes, messages: list) -> None:
         c = self.counters
         c.bytes_fed += len(data)
         buf = self._buf
         buf.extend(data)
-        t_s: float | None = None
         pos = 0
         n = len(buf)
         while pos < n:
@@ -205,17 +223,7 @@ class TelemetryDecoder:
             c.decoded += 1
             name = msg.get_type()
             c.by_type[name] = c.by_type.get(name, 0) + 1
-            if self.source_system is not None and msg.get_srcSystem() != self.source_system:
-                c.other_system += 1
-                continue
-            if t_s is None:
-                t_s = float(self.clock())
-            try:
-                reading = self._convert(msg, t_s)
-            except (TypeError, ValueError, OverflowError, AttributeError, IndexError):
-                reading = None
-            if reading is not None:
-                readings.append(reading)
+            messages.append(msg)
         del buf[:pos]
 
     def _check(self, frame: bytearray, magic: int, header_len: int, end: int, n: int):

@@ -29,6 +29,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--estimator", choices=["simple", "ekf"], help="each vessel's pose estimator (physics)")
     run.add_argument("--controller", choices=["simple", "mpc"], help="each vessel's velocity controller (physics)")
+    run.add_argument(
+        "--link",
+        choices=["mavlink", "direct"],
+        help="vehicle link (physics): MAVLink bytes through firmware_bridge, or readings handed over directly",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep = sub.add_parser("sweep", help="run a scenario over swarm sizes and seeds; plot metrics against size")
     sweep.add_argument("scenario", metavar="NAME|FILE")
@@ -50,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         return _sweep(args)
     try:
         scenario = load_scenario(args.scenario).with_overrides(
-            args.agents, args.seed, args.duration, args.fidelity, args.estimator, args.controller
+            args.agents, args.seed, args.duration, args.fidelity, args.estimator, args.controller, args.link
         )
     except ScenarioError as error:
         print(f"bob-sitl: {error}", file=sys.stderr)

@@ -40,17 +40,47 @@ def build_world(scenario: Scenario, rng: np.random.Generator) -> World:
 
 
 def initial_poses(scenario: Scenario, world: World, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
-    """Start positions (N, 2) m and headings (N,) rad drawn in each group's box."""
+    """Start positions (N, 2) m and headings (N,) rad: drawn in each group's box, or on its lattice."""
     positions, headings = [], []
     for group in scenario.groups:
-        box = group.start.box
-        placed = _sample_separated(group.count, box.min, box.max, group.start.min_separation_m, world, rng)
+        box, lattice = group.start.box, group.start.lattice
+        if lattice is not None:
+            placed = lattice_sites(group.count, lattice.center, lattice.spacing_m, lattice.kind, lattice.angle_deg)
+            if not world.inside_rooms(placed).all():
+                raise ScenarioError(f"group {group.name!r}: lattice sites fall outside the rooms")
+        else:
+            placed = _sample_separated(group.count, box.min, box.max, group.start.min_separation_m, world, rng)
         positions.append(placed)
         if group.start.heading_deg == "random":
             headings.append(rng.uniform(-np.pi, np.pi, group.count))
         else:
             headings.append(np.full(group.count, np.radians(group.start.heading_deg)))
     return np.concatenate(positions), np.concatenate(headings)
+
+
+def lattice_sites(n: int, center, spacing_m: float, kind: str = "triangular", angle_deg: float = 0.0) -> FloatArray:
+    """(n, 2) the n sites of a regular lattice nearest `center` (m), one of them at `center`.
+
+    kind: "triangular" or "square", sites `spacing_m` (m) from their nearest
+    neighbours; the lattice is turned by `angle_deg` (deg, counter-clockwise)
+    about `center`. Sites at equal distance are taken in order of bearing from
+    east, counter-clockwise (deterministic: no random draw).
+    """
+    if kind not in ("triangular", "square"):
+        raise ValueError(f"unknown lattice kind {kind!r}")
+    reach = int(np.ceil(np.sqrt(n))) + 2  # rows and columns each side: more sites than needed
+    i, j = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing="ij")
+    i, j = i.ravel().astype(float), j.ravel().astype(float)
+    if kind == "triangular":
+        local = np.column_stack((i + 0.5 * j, j * np.sqrt(3.0) / 2.0))
+    else:
+        local = np.column_stack((i, j))
+    radius = np.round(np.hypot(local[:, 0], local[:, 1]), 9)
+    bearing = np.round(np.mod(np.arctan2(local[:, 1], local[:, 0]), 2.0 * np.pi), 9)
+    chosen = local[np.lexsort((bearing, radius))[:n]] * spacing_m
+    turn = np.radians(angle_deg)
+    rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    return chosen @ rotation.T + np.asarray(center, dtype=float)
 
 
 def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.random.Generator) -> FloatArray:
@@ -92,6 +122,7 @@ def make_bodies(
         estimator=scenario.vessel.estimator,
         controller=scenario.vessel.controller,
         dt_s=scenario.dt_s,
+        link=scenario.vessel.link,
     )
 
 

@@ -13,15 +13,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.ekf import BuoyEkfBank, EbotEkfBank
 from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.mpc import BuoyMpc, DiffDriveMpc
-from bob_autonomy.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
-from bob_autonomy.velocity_control import BuoyVelocityController, DiffDriveController
-from firmware_bridge.readings import SensorReadings
+from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.simple_estimator import PoseEstimate
 from sitl.bodies import KinematicBodies
 from sitl.dynamics import BuoyDynamics, BuoyParams, DiffDriveDynamics, DiffDriveParams
 from sitl.environment import Environment
+from sitl.mavlink_vehicle import BUOY, EBOT
 from sitl.sensors import (
     CompassSpec,
     EncoderSpec,
@@ -33,6 +31,7 @@ from sitl.sensors import (
     noisy_light,
     noisy_ranges,
 )
+from sitl.vehicle_transport import DirectTransport, MavlinkTransport
 from sitl.world import FloatArray, World
 
 PRE_ROLL_S = 2.0  # sensors and estimators run this long before t = 0, as a vessel powered up before the mission
@@ -54,6 +53,7 @@ class PhysicalBodies(KinematicBodies):
         estimator: str = "simple",
         controller: str = "simple",
         dt_s: float = 0.1,
+        link: str = "direct",
     ) -> None:
         super().__init__(kinds, position, heading)
         self.environment = environment
@@ -85,30 +85,50 @@ class PhysicalBodies(KinematicBodies):
             encoders,
         )
         self.frame = frame
-        self.use_ekf, self.use_mpc = estimator == "ekf", controller == "mpc"
+        self.dt_s = dt_s
         wheel_base, per_tick = self.ebot_params.wheel_base_m, encoders.metres_per_tick
+        options = {"estimator": estimator, "controller": controller, "dt_s": dt_s}
+        self.buoy_vessels = BuoyPipeline(b.size, frame, self.max_thrust_n, **options)
         # eBots start from a known pose (the paper's robots are told theirs) and dead-reckon from there.
-        if self.use_ekf:
-            self.buoy_estimator = BuoyEkfBank(b.size)
-            self.ebot_estimator = EbotEkfBank(self.position[e], self.heading[e], wheel_base, per_tick)
-        else:
-            self.buoy_estimator = AlphaBetaBuoyEstimator(b.size)
-            self.ebot_estimator = OdometryEstimator(self.position[e], self.heading[e], wheel_base, per_tick)
-        self.buoy_controller = BuoyVelocityController()
-        self.ebot_controller = DiffDriveController(wheel_base, self.ebot_params.max_wheel_speed_mps)
-        self.buoy_mpcs = [BuoyMpc(dt_s=dt_s) for _ in range(b.size)] if self.use_mpc else []
-        self.ebot_mpcs = (
-            [DiffDriveMpc(wheel_base, self.ebot_params.max_wheel_speed_mps, dt_s=dt_s) for _ in range(e.size)]
-            if self.use_mpc
-            else []
+        self.ebot_vessels = EbotPipeline(
+            self.position[e], self.heading[e], wheel_base, self.ebot_params.max_wheel_speed_mps, per_tick, **options
         )
-        self.thrust_world_n = np.zeros((b.size, 2))  # last command, world frame (the EKF's known input)
-        self.mpc_fallbacks = 0
+        self.link = link
         self.t = -PRE_ROLL_S
+        if link == "mavlink":
+
+            def clock() -> float:  # the vessels stamp readings with the simulated time
+                return self.t
+
+            self.buoy_link = MavlinkTransport(BUOY, b.size, self.buoy_params.max_thrust_n, clock)
+            self.ebot_link = MavlinkTransport(
+                EBOT,
+                e.size,
+                self.ebot_params.max_wheel_speed_mps,
+                clock,
+                first_system_id=b.size + 1,
+                metres_per_tick=per_tick,
+            )
+        elif link == "direct":
+            self.buoy_link = self.ebot_link = DirectTransport()
+        else:
+            raise ValueError(f"unknown vehicle link {link!r}; choose direct or mavlink")
         self.wind = np.zeros_like(self.position)
         self.current = np.zeros_like(self.position)
         while self.t < -1e-9:
             self.apply(np.zeros((len(self), 2)), np.full(len(self), np.nan), 0.1, World())
+
+    @property
+    def mpc_fallbacks(self) -> int:
+        return self.buoy_vessels.mpc_fallbacks + self.ebot_vessels.mpc_fallbacks
+
+    def link_counters(self) -> dict[str, int]:
+        """MAVLink counters of the vehicles and vessels (empty for the direct link)."""
+        totals: dict[str, int] = {}
+        for transport in {id(t): t for t in (self.buoy_link, self.ebot_link)}.values():
+            for name, value in transport.counters().items():
+                totals[name] = totals.get(name, 0) + value
+        return totals
 
     def believed(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(position, heading, velocity) each vessel believes it has (estimates, not truth)."""
@@ -118,20 +138,20 @@ class PhysicalBodies(KinematicBodies):
     def _estimate(self) -> PoseEstimate:
         n = len(self)
         out = PoseEstimate(np.full((n, 2), np.nan), np.zeros((n, 2)), np.full(n, np.nan))
-        for rows, estimator in ((self.buoys, self.buoy_estimator), (self.ebots, self.ebot_estimator)):
+        for rows, vessels in ((self.buoys, self.buoy_vessels), (self.ebots, self.ebot_vessels)):
             if rows.size:
-                e = estimator.estimate(self.t)
+                e = vessels.estimate(self.t)
                 out.position[rows], out.velocity[rows], out.heading[rows] = e.position, e.velocity, e.heading
         return out
 
     def apply(self, wish_velocity: FloatArray, wish_heading: FloatArray, dt: float, world: World) -> None:
-        """One control step: controllers on the estimates, dynamics, environment, sensors, estimators."""
-        estimate = self._estimate()
+        """One control step: the vessels' controllers, the link, dynamics, environment, sensors, estimators."""
         b, e = self.buoys, self.ebots
+        idle = self.t < 0.0
         self.wind = self.environment.wind_at(self.position)
         self.current = self.environment.current_at(self.position)
         if self.buoy is not None:
-            thrust = self._buoy_thrust(wish_velocity[b], estimate, pre_roll=self.t < 0.0)
+            thrust = self.buoy_link.down(self.buoy_vessels.thrust(wish_velocity[b], self.t, idle=idle), self.t)
             self.buoy.active = self.active[b]
             self.buoy.step(thrust, dt, self.wind[b], self.current[b], self.max_thrust_n)
             self.position[b], self.velocity[b], self.heading[b] = (
@@ -140,7 +160,8 @@ class PhysicalBodies(KinematicBodies):
                 self.buoy.heading_rad,
             )
         if self.ebot is not None:
-            wheels = self._ebot_wheels(wish_velocity[e], wish_heading[e], estimate.heading[e])
+            wheels = self.ebot_vessels.wheels(wish_velocity[e], wish_heading[e], self.t, idle=idle)
+            wheels = self.ebot_link.down(wheels, self.t)
             self.ebot.active = self.active[e]
             self.ebot.step(wheels, dt, world)
             self.position[e], self.velocity[e], self.heading[e] = (
@@ -154,43 +175,14 @@ class PhysicalBodies(KinematicBodies):
         self.t += dt
         self._sense()
 
-    def _buoy_thrust(self, wish: FloatArray, estimate: PoseEstimate, pre_roll: bool) -> FloatArray:
-        """Body-frame thrust (N) for every buoy from its controller; world thrust kept for the EKF."""
-        b = self.buoys
-        velocity, heading = estimate.velocity[b], estimate.heading[b]
-        if self.use_mpc and not pre_roll:
-            water = self.buoy_estimator.drift() if self.use_ekf else np.zeros_like(velocity)
-            results = [
-                mpc.solve(wish[k], velocity[k], water[k], heading[k], self.max_thrust_n[k])
-                for k, mpc in enumerate(self.buoy_mpcs)
-            ]
-            self.mpc_fallbacks = sum(m.fallbacks for m in self.buoy_mpcs)
-            self.thrust_world_n = np.array([r.thrust_world_n for r in results]).reshape(-1, 2)
-            return np.array([r.thrust_body_n for r in results]).reshape(-1, 2)
-        body = self.buoy_controller.thrust(wish, velocity, heading, self.max_thrust_n)
-        c, s = np.cos(np.nan_to_num(heading)), np.sin(np.nan_to_num(heading))
-        self.thrust_world_n = np.column_stack((c * body[:, 0] - s * body[:, 1], s * body[:, 0] + c * body[:, 1]))
-        return body
-
-    def _ebot_wheels(self, wish: FloatArray, wish_heading: FloatArray, heading: FloatArray) -> FloatArray:
-        """Wheel speeds (m/s) for every eBot from its controller."""
-        simple = self.ebot_controller.wheels(wish, wish_heading, heading)
-        if not self.use_mpc or self.t < 0.0:
-            return simple
-        # The MPC tracks a velocity vector; turning in place to a wished heading stays the simple controller's.
-        turning = ~np.isnan(wish_heading) & (np.hypot(wish[:, 0], wish[:, 1]) < 1e-6)
-        wheels = np.array([mpc.solve(wish[k], heading[k]).wheels_mps for k, mpc in enumerate(self.ebot_mpcs)])
-        self.mpc_fallbacks = sum(m.fallbacks for m in self.ebot_mpcs)
-        return np.where(turning[:, None], simple, wheels.reshape(-1, 2))
-
     def _sense(self) -> None:
-        """Sample the sensors at the new time and feed the estimators."""
+        """Sample the sensors at the new time; the readings go up the link to the vessels' estimators."""
         if self.buoy is not None:
             d = self.buoy
             readings = self.buoy_sensors.sample(
                 self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps
             )
-            self._estimate_buoys(readings)
+            self.buoy_vessels.feed(self.buoy_link.up(readings, self.t))
         if self.ebot is not None:
             d = self.ebot
             readings = self.ebot_sensors.sample(
@@ -202,32 +194,7 @@ class PhysicalBodies(KinematicBodies):
                 d.yaw_rate_radps,
                 d.wheel_travel_m,
             )
-            if readings.encoders is not None:
-                r = readings.encoders
-                self.ebot_estimator.update_encoders(r.agents, r.t_s, r.ticks)
-            if readings.compass is not None:
-                self._compass(self.ebot_estimator, readings)
-
-    def _compass(self, estimator, readings: SensorReadings) -> None:
-        """Feed compass readings (the EKFs take their measurement times)."""
-        c = readings.compass
-        if self.use_ekf:
-            estimator.update_compass(c.agents, c.heading_rad, c.t_s)
-        else:
-            estimator.update_compass(c.agents, c.heading_rad)
-
-    def _estimate_buoys(self, readings: SensorReadings) -> None:
-        if self.use_ekf and readings.imu is not None:
-            # The accelerometer drives the prediction; the commanded thrust makes the drift observable.
-            imu = readings.imu
-            self.buoy_estimator.predict(imu.agents, imu.t_s, imu.accel_body_mps2, self.thrust_world_n[imu.agents])
-            self.buoy_estimator.update_gyro(imu.agents, imu.t_s, imu.gyro_z_radps)
-        if readings.gps is not None:
-            fix = readings.gps
-            x, y = self.frame.to_local(fix.lat_deg, fix.lon_deg)
-            self.buoy_estimator.update_gps(fix.agents, fix.t_s, np.column_stack((x, y)), fix.velocity_mps)
-        if readings.compass is not None:
-            self._compass(self.buoy_estimator, readings)
+            self.ebot_vessels.feed(self.ebot_link.up(readings, self.t))
 
     def range_finders(self, rows: NDArray[np.int_], world: World) -> FloatArray:
         """The sonar echoes of the kinematic model, with range noise."""

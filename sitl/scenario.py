@@ -50,12 +50,39 @@ class Box(Model):
         return self
 
 
-class Start(Model):
-    """Where a group starts: uniformly at random in `box`; heading in degrees or random."""
+class Lattice(Model):
+    """A regular lattice of start sites: the `count` sites nearest `center`, m.
 
-    box: Box
+    kind: "triangular" (equilateral triangles, each inner site with 6
+    neighbours at `spacing_m`) or "square". One site is at `center` (m);
+    `angle_deg` turns the lattice about it (deg, counter-clockwise from east).
+    """
+
+    center: Point
+    spacing_m: PositiveFloat
+    kind: Literal["triangular", "square"] = "triangular"
+    angle_deg: float = 0.0
+
+
+class Start(Model):
+    """Where a group starts: uniformly at random in `box`, or on the sites of a `lattice`.
+
+    heading_deg: in degrees, or "random". min_separation_m: least distance
+    between random starts in the box, m (a lattice is spaced by its `spacing_m`).
+    """
+
+    box: Box | None = None
+    lattice: Lattice | None = None
     heading_deg: float | Literal["random"] = "random"
     min_separation_m: float = Field(default=0.0, ge=0)
+
+    @model_validator(mode="after")
+    def _one_placement(self) -> Start:
+        if (self.box is None) == (self.lattice is None):
+            raise ValueError("give exactly one of 'box' or 'lattice'")
+        if self.lattice is not None and self.min_separation_m:
+            raise ValueError("'min_separation_m' is for a 'box'; a lattice is spaced by its 'spacing_m'")
+        return self
 
 
 class BehaviorChoice(Model):
@@ -251,11 +278,15 @@ class VesselSpec(Model):
     estimator: "simple" (alpha-beta GPS tracker / odometry) or "ekf" (filterpy
     EKFs with a drift state; several times slower). controller: "mpc" (casadi
     QP, the default) or "simple" (proportional with drag feed-forward). The
-    MPC's horizon step is the scenario's dt_s.
+    MPC's horizon step is the scenario's dt_s. link: "mavlink" (the full stack:
+    each vehicle sends MAVLink telemetry bytes that the vessel decodes with
+    firmware_bridge and gets RC_CHANNELS_OVERRIDE bytes back, in memory) or
+    "direct" (readings and commands handed over as objects; faster).
     """
 
     estimator: Literal["simple", "ekf"] = "simple"
     controller: Literal["simple", "mpc"] = "mpc"
+    link: Literal["direct", "mavlink"] = "mavlink"
 
 
 class Origin(Model):
@@ -328,6 +359,7 @@ class Scenario(Model):
         fidelity: str | None = None,
         estimator: str | None = None,
         controller: str | None = None,
+        link: str | None = None,
     ) -> Scenario:
         """A copy with the command-line overrides applied (and validated)."""
         data = self.model_dump()
@@ -337,6 +369,8 @@ class Scenario(Model):
             data["vessel"]["estimator"] = estimator
         if controller is not None:
             data["vessel"]["controller"] = controller
+        if link is not None:
+            data["vessel"]["link"] = link
         if seed is not None:
             data["seed"] = seed
         if duration_s is not None:

@@ -341,7 +341,7 @@ def test_ekf_and_mpc_vessel_options_drive_a_buoy() -> None:
     for _ in range(60):
         fleet.step()
     bodies = fleet.bodies
-    assert bodies.use_ekf and bodies.use_mpc
+    assert bodies.buoy_vessels.use_ekf and bodies.buoy_vessels.use_mpc
     np.testing.assert_allclose(bodies.velocity[:, 0], 0.5, atol=0.08)
     believed, _, _ = bodies.believed()
     assert np.hypot(*(believed - bodies.position).T).max() < 6.0

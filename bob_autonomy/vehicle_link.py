@@ -1,0 +1,99 @@
+"""The autonomy's MAVLink conversation with its own vehicle: telemetry in, actuator commands out.
+
+Transport-free (bytes in, bytes out), so that the `bob-autonomy` process (over a
+UDP, TCP or serial link) and the lockstep simulator (bytes in memory) run the
+very same decoding and command code. Decoding never raises (see
+`firmware_bridge.decoder`); a vehicle that stops sending HEARTBEATs is reported
+by `silent()`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from firmware_bridge.commands import Encoder, command_long_arm, rc_override_for_thrust, rc_override_for_wheels, set_mode
+from firmware_bridge.decoder import Battery, CommandAck, Heartbeat, HeartbeatWatch, Reading, TelemetryDecoder
+
+BUOY, EBOT = "buoy", "ebot"
+
+
+class VehicleLink:
+    """One vehicle (MAVLink system `target_system`) as the autonomy sees it.
+
+    kind: "buoy" (commands are body-frame thrust, N) or "ebot" (wheel speeds, m/s). max_actuator: the
+    actuator's full scale (N or m/s), which RC 1900 us stands for. agent: the row its readings carry.
+    clock: seconds, stamps readings at reception. heartbeat_timeout_s: silence after which `silent()` is true.
+    """
+
+    def __init__(
+        self,
+        target_system: int,
+        kind: str,
+        max_actuator: float,
+        clock: Callable[[], float],
+        *,
+        agent: int = 0,
+        heartbeat_timeout_s: float = 3.0,
+        encoder: Encoder | None = None,
+    ) -> None:
+        if kind not in (BUOY, EBOT):
+            raise ValueError(f"unknown vehicle kind {kind!r}; choose buoy or ebot")
+        self.target_system, self.kind, self.max_actuator = target_system, kind, float(max_actuator)
+        self.decoder = TelemetryDecoder(clock, agent=agent, source_system=target_system)
+        self.watch = HeartbeatWatch(heartbeat_timeout_s, clock, system=target_system)
+        self.encoder = encoder if encoder is not None else Encoder()
+        self.last_heartbeat: Heartbeat | None = None
+        self.battery: Battery | None = None
+        self.acks: list[CommandAck] = []
+
+    def receive(self, data: bytes) -> list[Reading]:
+        """Decode bytes from the vehicle; returns the sensor readings (GPS, compass, IMU, wheels) among them."""
+        sensors: list[Reading] = []
+        for reading in self.decoder.feed(data):
+            if isinstance(reading, Heartbeat):
+                if reading.component == 1:  # the autopilot, not a companion or GCS on the same system
+                    self.watch.beat(reading.t_s)
+                    self.last_heartbeat = reading
+            elif isinstance(reading, Battery):
+                self.battery = reading
+            elif isinstance(reading, CommandAck):
+                self.acks.append(reading)
+            else:
+                sensors.append(reading)
+        return sensors
+
+    def silent(self) -> bool:
+        """True when the vehicle's heartbeat has not been heard for longer than the timeout."""
+        return self.watch.is_silent()
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.last_heartbeat is not None and self.last_heartbeat.armed)
+
+    def command(self, actuator: np.ndarray) -> bytes:
+        """RC_CHANNELS_OVERRIDE for a thrust (x forward, y left; N) or wheel speeds (left, right; m/s)."""
+        a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2))
+        if self.kind == BUOY:
+            return rc_override_for_thrust(a, self.max_actuator, self.target_system, encoder=self.encoder)
+        return rc_override_for_wheels(a[0], a[1], self.max_actuator, self.target_system, encoder=self.encoder)
+
+    def stop(self) -> bytes:
+        """A neutral command: thrusters or wheels at zero."""
+        return self.command(np.zeros(2))
+
+    def arm(self, arm: bool = True) -> bytes:
+        """COMMAND_LONG arm (or disarm); the vehicle answers with a COMMAND_ACK (see `acks`)."""
+        return command_long_arm(arm, self.target_system, encoder=self.encoder)
+
+    def set_mode(self, mode: str | int) -> bytes:
+        """COMMAND_LONG set mode (a Rover mode name or number)."""
+        return set_mode(mode, self.target_system, encoder=self.encoder)
+
+    def take_ack(self, command: int) -> CommandAck | None:
+        """Remove and return the oldest COMMAND_ACK for `command`, if one has arrived."""
+        for k, ack in enumerate(self.acks):
+            if ack.command == command:
+                return self.acks.pop(k)
+        return None

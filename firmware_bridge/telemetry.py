@@ -1,0 +1,132 @@
+"""Encode a vehicle's telemetry as MAVLink 2 bytes: the autopilot's side of `firmware_bridge.decoder`.
+
+Simulated vehicles and bridges to firmwares that do not speak MAVLink (the eBot)
+use these to look like an ArduPilot vehicle. Every function is the exact inverse
+of the decoder's conversion (frames and signs in docs/mavlink-mapping.md), up to
+the message's integer units: lat/lon 1e-7 deg, speed 1 cm/s, course 0.01 deg,
+acceleration 1 mG, rates 1 mrad/s.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from firmware_bridge.commands import Encoder
+from firmware_bridge.decoder import STANDARD_GRAVITY_MPS2, UINT16_MAX
+
+INT16_MAX = 32767
+
+
+def yaw_from_heading(heading_rad: float) -> float:
+    """MAVLink yaw (rad from north, clockwise) in (-pi, pi] from our heading (from east, counter-clockwise)."""
+    yaw = math.pi / 2.0 - float(heading_rad)
+    return math.pi - (math.pi - yaw) % (2.0 * math.pi)
+
+
+def _usec(t_s: float) -> int:
+    """A vehicle time stamp in microseconds (uint64; times before boot, t_s < 0, are sent as 0)."""
+    return max(0, int(t_s * 1e6))
+
+
+def _ms(t_s: float) -> int:
+    """A vehicle time stamp in milliseconds since boot (uint32, wrapping)."""
+    return max(0, int(t_s * 1000)) & 0xFFFFFFFF
+
+
+def _int16(value: float) -> int:
+    return int(max(-INT16_MAX, min(INT16_MAX, round(value))))
+
+
+class TelemetryEncoder:
+    """One vehicle's telemetry frames, sent as (system_id, component 1: the autopilot). Times t_s are the
+    vehicle's seconds since boot (the decoder ignores them: it stamps readings at reception)."""
+
+    def __init__(self, system_id: int, component_id: int = mavlink.MAV_COMP_ID_AUTOPILOT1) -> None:
+        self.encoder = Encoder(system_id, component_id)
+        self.mav = self.encoder.mav
+
+    def heartbeat(self, mav_type: int, armed: bool, custom_mode: int = 0) -> bytes:
+        """HEARTBEAT of an ArduPilot vehicle (custom mode enabled; armed flag as given)."""
+        base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if armed:
+            base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        state = mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
+        message = self.mav.heartbeat_encode(
+            mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base_mode, custom_mode, state
+        )
+        return self.encoder.pack(message)
+
+    def gps_raw_int(
+        self,
+        t_s: float,
+        lat_deg: float,
+        lon_deg: float,
+        velocity_mps: Sequence[float] | None = None,
+        *,
+        fix_type: int = mavlink.GPS_FIX_TYPE_3D_FIX,
+        satellites: int = 12,
+        hdop: float = 0.9,
+    ) -> bytes:
+        """GPS_RAW_INT: position (deg), ground velocity (east, north) m/s as speed and course over ground."""
+        vel, cog = UINT16_MAX, UINT16_MAX
+        if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
+            east, north = float(velocity_mps[0]), float(velocity_mps[1])
+            vel = min(UINT16_MAX - 1, round(math.hypot(east, north) * 100.0))
+            cog = round(math.degrees(math.atan2(east, north)) * 100.0) % 36000
+        message = self.mav.gps_raw_int_encode(
+            _usec(t_s),
+            fix_type,
+            round(lat_deg * 1e7),
+            round(lon_deg * 1e7),
+            0,
+            min(UINT16_MAX - 1, round(hdop * 100)),
+            UINT16_MAX,
+            vel,
+            cog,
+            satellites,
+        )
+        return self.encoder.pack(message)
+
+    def attitude(self, t_s: float, heading_rad: float, yaw_rate_radps: float = 0.0) -> bytes:
+        """ATTITUDE, level: yaw from our heading, yawspeed clockwise-positive (rad/s)."""
+        message = self.mav.attitude_encode(
+            _ms(t_s), 0.0, 0.0, yaw_from_heading(heading_rad), 0.0, 0.0, -float(yaw_rate_radps)
+        )
+        return self.encoder.pack(message)
+
+    def scaled_imu(self, t_s: float, accel_body_mps2: Sequence[float], gyro_z_radps: float) -> bytes:
+        """SCALED_IMU (mG, mrad/s, FRD body frame) from our level IMU (x forward, y left; yaw rate CCW)."""
+        to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
+        message = self.mav.scaled_imu_encode(
+            _ms(t_s),
+            _int16(accel_body_mps2[0] * to_mg),
+            _int16(-accel_body_mps2[1] * to_mg),
+            -1000,  # 1 g down (z down)
+            0,
+            0,
+            _int16(-gyro_z_radps * 1000.0),
+            0,
+            0,
+            0,
+        )
+        return self.encoder.pack(message)
+
+    def wheel_distance(self, t_s: float, distance_m: Sequence[float]) -> bytes:
+        """WHEEL_DISTANCE with two wheels (left, right), cumulative metres."""
+        distances = [float(distance_m[0]), float(distance_m[1])] + [0.0] * 14
+        return self.encoder.pack(self.mav.wheel_distance_encode(_usec(t_s), 2, distances))
+
+    def sys_status(self, voltage_v: float, remaining_pct: float) -> bytes:
+        """SYS_STATUS with the battery voltage (V) and remaining charge (%); NaN reports unknown."""
+        voltage = UINT16_MAX if not math.isfinite(voltage_v) else round(voltage_v * 1000.0)
+        remaining = -1 if not math.isfinite(remaining_pct) else round(remaining_pct)
+        message = self.mav.sys_status_encode(0, 0, 0, 0, voltage, -1, remaining, 0, 0, 0, 0, 0, 0)
+        return self.encoder.pack(message)
+
+    def command_ack(self, command: int, result: int, target_system: int = 0, target_component: int = 0) -> bytes:
+        """COMMAND_ACK of a COMMAND_LONG."""
+        message = self.mav.command_ack_encode(command, result, 0, 0, target_system, target_component)
+        return self.encoder.pack(message)
