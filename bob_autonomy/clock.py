@@ -39,3 +39,19 @@ class ManualClock:
         if t_s < self._t:
             raise ValueError(f"time cannot go backwards ({t_s} < {self._t})")
         self._t = t_s
+
+
+class ScaledWallClock:
+    """Wall time run `scale` times faster, s from construction (a simulation sped up; scale 1 on a vessel)."""
+
+    def __init__(self, scale: float = 1.0, start_s: float = 0.0) -> None:
+        if not scale > 0:
+            raise ValueError(f"the time scale must be positive, got {scale!r}")
+        self.scale, self._start_s, self._t0 = float(scale), float(start_s), time.monotonic()
+
+    def now(self) -> float:
+        return self._start_s + (time.monotonic() - self._t0) * self.scale
+
+    def wall_seconds(self, clock_s: float) -> float:
+        """How many wall seconds `clock_s` of this clock's seconds last."""
+        return clock_s / self.scale

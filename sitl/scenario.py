@@ -8,18 +8,15 @@ a packaged name or a path; `Scenario.model_validate` builds one from a dict
 
 from __future__ import annotations
 
-import dataclasses
 import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from behaviors.base import Behavior
-from behaviors.obstacle_avoidance import AvoidObstacles
-from behaviors.registry import behavior_class, with_avoidance
+from bob_autonomy.behavior_config import BehaviorChoice, build_dataclass
 from bob_autonomy.geodesy import LocalFrame
 from sitl.environment import CurrentSpec, Environment, WindSpec
 from sitl.radio import RadioChannel
@@ -83,45 +80,6 @@ class Start(Model):
         if self.lattice is not None and self.min_separation_m:
             raise ValueError("'min_separation_m' is for a 'box'; a lattice is spaced by its 'spacing_m'")
         return self
-
-
-class BehaviorChoice(Model):
-    """A behaviour by registered name, its parameters, and optional obstacle avoidance."""
-
-    behavior: str
-    params: dict[str, Any] = {}
-    avoid_obstacles: bool = False
-    avoid_params: dict[str, float] = {}
-
-    @model_validator(mode="after")
-    def _buildable(self) -> BehaviorChoice:
-        self.build()
-        return self
-
-    def build(self) -> Behavior:
-        """An instance of the chosen behaviour with validated parameters (ValueError if not)."""
-        try:
-            cls = behavior_class(self.behavior)
-        except KeyError as error:
-            raise ValueError(error.args[0]) from None
-        behavior = _build(cls, self.params, f"parameter(s) for {self.behavior!r}")
-        if not self.avoid_obstacles:
-            return behavior
-        _check_names(self.avoid_params, AvoidObstacles, "avoid_params")
-        return with_avoidance(behavior, **self.avoid_params)
-
-
-def _check_names(params: dict[str, Any], cls: type, what: str) -> None:
-    known = {f.name for f in dataclasses.fields(cls) if f.init} - {"inner"}
-    unknown = sorted(set(params) - known)
-    if unknown:
-        raise ValueError(f"unknown {what}: {unknown}; known: {sorted(known)}")
-
-
-def _build(cls: type, params: dict[str, Any], what: str) -> Any:
-    """An instance of dataclass `cls` from `params`: names checked, values validated (ValueError if not)."""
-    _check_names(params, cls, what)
-    return TypeAdapter(cls).validate_python(params)
 
 
 class Group(BehaviorChoice):
@@ -214,7 +172,7 @@ class NetworkSpec(Model):
         """The radio channel model, or None for perfect delivery."""
         if self.radio is None:
             return None
-        return _build(RadioChannel, self.radio, "radio parameter(s)")
+        return build_dataclass(RadioChannel, self.radio, "radio parameter(s)")
 
 
 class EnvironmentSpec(Model):
@@ -234,8 +192,8 @@ class EnvironmentSpec(Model):
 
     def specs(self) -> tuple[WindSpec, CurrentSpec]:
         return (
-            _build(WindSpec, self.wind, "wind parameter(s)"),
-            _build(CurrentSpec, self.current, "current parameter(s)"),
+            build_dataclass(WindSpec, self.wind, "wind parameter(s)"),
+            build_dataclass(CurrentSpec, self.current, "current parameter(s)"),
         )
 
     def build(self, rng: np.random.Generator) -> Environment:
@@ -269,7 +227,10 @@ class SensorsSpec(Model):
         return self
 
     def specs(self) -> dict[str, Any]:
-        return {name: _build(cls, getattr(self, name), f"{name} parameter(s)") for name, cls in SENSOR_SPECS.items()}
+        return {
+            name: build_dataclass(cls, getattr(self, name), f"{name} parameter(s)")
+            for name, cls in SENSOR_SPECS.items()
+        }
 
 
 class VesselSpec(Model):

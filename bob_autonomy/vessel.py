@@ -1,0 +1,341 @@
+"""The on-vessel autonomy process: one agent driving one MAVLink vehicle, talking to its swarm over a mesh.
+
+Each control period (dt_s): drain the vehicle link (telemetry decoded by
+firmware_bridge, fused by the estimator), step the agent (listen to the mesh,
+run the behaviour on the estimate, broadcast the state at the mesh rate), turn
+the wish into an actuator command (MPC or proportional) and send it as
+RC_CHANNELS_OVERRIDE. A HEARTBEAT goes to the vehicle every second. If the
+vehicle goes silent the vessel commands neutral and raises an alarm (logged,
+counted); one bad message never stops the loop. On stop the thrusters or
+wheels are left at zero.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import statistics
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from behaviors.base import Senses
+from bob_autonomy.agent import Agent
+from bob_autonomy.behavior_config import BehaviorChoice
+from bob_autonomy.clock import ScaledWallClock
+from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.interfaces import AgentState, Pose
+from bob_autonomy.mesh import LinkMesh
+from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.vehicle_link import BUOY, EBOT, VehicleLink
+from bob_autonomy.velocity_control import BuoyModel
+from firmware_bridge.commands import heartbeat
+from firmware_bridge.links import Link, LinkError, open_link
+
+logger = logging.getLogger(__name__)
+
+
+class VehicleError(RuntimeError):
+    """The vehicle cannot be driven (never answered, refused to arm); the message says which and why."""
+
+
+@dataclass(frozen=True)
+class EbotConfig:
+    """What the autonomy knows of an eBot: wheel base m, top wheel speed m/s, encoder travel per tick m."""
+
+    wheel_base_m: float = 0.1
+    max_wheel_speed_mps: float = 0.2
+    metres_per_tick: float = 2.0 * math.pi * 0.03 / 360
+
+
+@dataclass(frozen=True)
+class VesselConfig:
+    """Everything one autonomy process needs (units: m, s, rad, deg for latitude and longitude)."""
+
+    vehicle: str
+    system_id: int
+    behavior: BehaviorChoice
+    origin: tuple[float, float]
+    kind: str = BUOY
+    mesh: str | None = None
+    memory_fields: tuple[str, ...] = ()
+    time_scale: float = 1.0
+    dt_s: float = 0.1
+    broadcast_period_s: float = 0.1
+    neighbor_expiry_s: float = 1.0
+    estimator: str = "simple"
+    controller: str = "mpc"
+    start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_thrust_fraction: float = 1.0
+    heartbeat_timeout_s: float = 3.0
+    arm_timeout_s: float = 10.0
+    baud: int = 115200
+    ebot: EbotConfig = field(default_factory=EbotConfig)
+
+    @property
+    def agent_id(self) -> int:
+        return self.system_id - 1
+
+
+class ThrottledMesh:
+    """A mesh that sends at most one state per `period_s` (the radio's budget); receiving is unthrottled."""
+
+    def __init__(self, inner: LinkMesh, period_s: float) -> None:
+        self.inner, self.period_s = inner, period_s
+        self._next_s = -math.inf
+
+    def broadcast(self, state: AgentState) -> None:
+        if state.t >= self._next_s:
+            self._next_s = state.t + self.period_s - 1e-9
+            self.inner.broadcast(state)
+
+    def receive(self) -> list[AgentState]:
+        return self.inner.receive()
+
+
+class SilentMesh:
+    """No radio: the agent acts alone."""
+
+    def broadcast(self, state: AgentState) -> None:
+        pass
+
+    def receive(self) -> list[AgentState]:
+        return []
+
+
+class MavlinkBody:
+    """The Body of an agent whose vehicle is reached over MAVLink: pose from the vessel's own estimator."""
+
+    def __init__(self, pipeline: BuoyPipeline | EbotPipeline, clock: ScaledWallClock) -> None:
+        self.pipeline, self.clock = pipeline, clock
+        self.wish_velocity = np.zeros(2)
+        self.wish_heading = math.nan
+
+    def pose(self) -> Pose:
+        e = self.pipeline.estimate(self.clock.now())
+        return Pose(*e.position[0], float(e.heading[0]), *e.velocity[0])
+
+    def senses(self) -> Senses:
+        # Range finders and light sensors are not carried over MAVLink yet: NaN, which behaviours read as "none".
+        return Senses(obstacles=np.full((1, 6, 2), np.nan), light=np.full((1, 2), np.nan))
+
+    def command(self, velocity_mps: np.ndarray, heading_rad: float) -> None:
+        self.wish_velocity = np.nan_to_num(np.asarray(velocity_mps, dtype=float).reshape(2))
+        self.wish_heading = float(heading_rad)
+
+
+@dataclass
+class VesselStats:
+    """Counters and timings of one autonomy process (latencies in wall seconds)."""
+
+    ticks: int = 0
+    commands: int = 0
+    readings: int = 0
+    link_errors: int = 0
+    step_errors: int = 0
+    silent_alarms: int = 0
+    compute_latency_s: list[float] = field(default_factory=list)
+    telemetry_to_command_s: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict[str, float]:
+        out: dict[str, float] = {k: v for k, v in vars(self).items() if isinstance(v, int)}
+        for name in ("compute_latency_s", "telemetry_to_command_s"):
+            values = sorted(getattr(self, name))
+            if values:
+                out[f"{name}_median"] = statistics.median(values)
+                out[f"{name}_p99"] = values[min(len(values) - 1, int(0.99 * len(values)))]
+        return out
+
+
+class Vessel:
+    """One autonomy process: vehicle link, estimator and controller, agent and mesh. `run()` until `stop()`."""
+
+    def __init__(self, config: VesselConfig, clock: ScaledWallClock | None = None) -> None:
+        self.config = config
+        self.clock = clock or ScaledWallClock(config.time_scale)
+        c = config
+        if c.kind == BUOY:
+            max_thrust = BuoyModel().max_thrust_n
+            self.max_actuator = max_thrust
+            self.pipeline: BuoyPipeline | EbotPipeline = BuoyPipeline(
+                1,
+                LocalFrame(*c.origin),
+                np.array([max_thrust * c.max_thrust_fraction]),
+                estimator=c.estimator,
+                controller=c.controller,
+                dt_s=c.dt_s,
+            )
+        elif c.kind == EBOT:
+            e = c.ebot
+            self.max_actuator = e.max_wheel_speed_mps
+            x, y, heading = c.start_pose
+            self.pipeline = EbotPipeline(
+                np.array([[x, y]]),
+                np.array([heading]),
+                e.wheel_base_m,
+                e.max_wheel_speed_mps,
+                e.metres_per_tick,
+                estimator=c.estimator,
+                controller=c.controller,
+                dt_s=c.dt_s,
+            )
+        else:
+            raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy or ebot")
+        self.vehicle_link: Link = open_link(c.vehicle, c.baud)
+        self.vehicle = VehicleLink(
+            c.system_id, c.kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
+        )
+        self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
+        network = (
+            ThrottledMesh(LinkMesh(self.mesh_link, c.agent_id, c.memory_fields, self.clock.now), c.broadcast_period_s)
+            if self.mesh_link is not None
+            else SilentMesh()
+        )
+        self.network = network
+        self.body = MavlinkBody(self.pipeline, self.clock)
+        self.agent = Agent(c.agent_id, self.body, network, c.behavior.build(), self.clock, c.neighbor_expiry_s)
+        self.stats = VesselStats()
+        self._stop = threading.Event()
+        self._next_heartbeat_s = -math.inf
+        self._last_reading_wall_s: float | None = None
+        self._alarm = False
+        self.has_fix = False
+
+    # -- link ------------------------------------------------------------------------------------------
+
+    def _send(self, data: bytes) -> None:
+        try:
+            self.vehicle_link.write(data)
+        except LinkError as error:
+            self.stats.link_errors += 1
+            logger.error("vehicle link write failed (%d so far): %s", self.stats.link_errors, error)
+
+    def pump(self, wait_wall_s: float = 0.0) -> None:
+        """Read and decode what the vehicle sent, waiting at most `wait_wall_s` for the first bytes."""
+        timeout = max(0.0, wait_wall_s)
+        while True:
+            try:
+                data = self.vehicle_link.read(65535, timeout)
+            except LinkError as error:
+                self.stats.link_errors += 1
+                logger.error("vehicle link read failed (%d so far): %s", self.stats.link_errors, error)
+                time.sleep(min(timeout, 0.1))
+                return
+            if not data:
+                return
+            timeout = 0.0
+            readings = self.vehicle.receive(data)
+            if readings:
+                self._last_reading_wall_s = time.perf_counter()
+                self.stats.readings += len(readings)
+                self.pipeline.feed(readings)
+
+    def _heartbeat(self, now: float) -> None:
+        if now >= self._next_heartbeat_s:
+            self._next_heartbeat_s = now + self.config.time_scale  # one wall second
+            self._send(heartbeat())
+
+    # -- start -----------------------------------------------------------------------------------------
+
+    def arm(self) -> None:
+        """Arm the vehicle: COMMAND_LONG until a COMMAND_ACK accepts it (one try per wall second)."""
+        deadline = time.monotonic() + self.config.arm_timeout_s
+        while time.monotonic() < deadline and not self._stop.is_set():
+            self._send(heartbeat())
+            self._send(self.vehicle.arm(True))
+            tries_until = time.monotonic() + 1.0
+            while time.monotonic() < tries_until:
+                self.pump(0.05)
+                ack = self.vehicle.take_ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+                if ack is not None:
+                    if ack.result == mavlink.MAV_RESULT_ACCEPTED:
+                        logger.info("vehicle %d armed", self.config.system_id)
+                        return
+                    raise VehicleError(f"vehicle {self.config.system_id} refused to arm (MAV_RESULT {ack.result})")
+        if self._stop.is_set():
+            return
+        raise VehicleError(
+            f"vehicle {self.config.system_id} on {self.config.vehicle!r} did not acknowledge arming within "
+            f"{self.config.arm_timeout_s} s (heartbeat {'seen' if self.vehicle.last_heartbeat else 'never seen'})"
+        )
+
+    # -- the loop --------------------------------------------------------------------------------------
+
+    def tick(self) -> None:
+        """One control step (see the module docstring)."""
+        now = self.clock.now()
+        self.stats.ticks += 1
+        self._heartbeat(now)
+        if self.vehicle.silent():
+            if not self._alarm:
+                self.stats.silent_alarms += 1
+                logger.error(
+                    "ALARM: vehicle %d silent for %.1f s: commanding neutral",
+                    self.config.system_id,
+                    self.vehicle.watch.silent_for_s(),
+                )
+            self._alarm = True
+            self._send(self.vehicle.stop())
+            return
+        if self._alarm:
+            logger.warning("vehicle %d heard again", self.config.system_id)
+            self._alarm = False
+        start = time.perf_counter()
+        if not self.has_fix:
+            self.has_fix = bool(np.isfinite(self.pipeline.estimate(now).position).all())
+            if not self.has_fix:
+                self._send(self.vehicle.stop())  # waiting for a position: hold still
+                return
+        try:
+            self.agent.step()
+            wish = self.body.wish_velocity[None, :]
+            if isinstance(self.pipeline, BuoyPipeline):
+                actuator = self.pipeline.thrust(wish, now)[0]
+            else:
+                actuator = self.pipeline.wheels(wish, np.array([self.body.wish_heading]), now)[0]
+        except Exception:  # one bad step must not kill the vessel: count it, stop the actuators, go on
+            self.stats.step_errors += 1
+            logger.exception("control step failed (%d so far); commanding neutral", self.stats.step_errors)
+            actuator = np.zeros(2)
+        self._send(self.vehicle.command(actuator))
+        done = time.perf_counter()
+        self.stats.commands += 1
+        self.stats.compute_latency_s.append(done - start)
+        if self._last_reading_wall_s is not None:
+            self.stats.telemetry_to_command_s.append(done - self._last_reading_wall_s)
+
+    def run(self, duration_s: float | None = None) -> VesselStats:
+        """Arm, then run control steps every dt_s (clock seconds) until `stop()` or `duration_s` has passed."""
+        self.arm()
+        end = math.inf if duration_s is None else self.clock.now() + duration_s
+        next_tick = self.clock.now()
+        while not self._stop.is_set() and self.clock.now() < end:
+            # Read telemetry as it arrives until the tick is due, then act on everything heard.
+            while not self._stop.is_set():
+                wait = self.clock.wall_seconds(next_tick - self.clock.now())
+                if wait <= 0:
+                    break
+                self.pump(min(wait, 0.05))
+            self.pump(0.0)
+            self.tick()
+            next_tick += self.config.dt_s
+            if next_tick < self.clock.now():  # fell behind: skip the missed ticks rather than burst
+                next_tick = self.clock.now()
+        self.shutdown()
+        return self.stats
+
+    def stop(self) -> None:
+        """Ask `run()` to finish (safe from a signal handler or another thread)."""
+        self._stop.set()
+
+    def shutdown(self) -> None:
+        """Leave the actuators at zero and close the links."""
+        for _ in range(3):
+            self._send(self.vehicle.stop())
+        for link in (self.vehicle_link, self.mesh_link):
+            if link is not None:
+                link.close()
+        logger.info("vessel %d stopped: %s", self.config.system_id, self.stats.summary())

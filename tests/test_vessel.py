@@ -1,0 +1,203 @@
+"""The autonomy process over real UDP: mesh packets, and a Vessel driving a simulated vehicle's autopilot.
+
+The vehicle here is `sitl.mavlink_vehicle.SimulatedVehicle` (the simulator's autopilot) on a real UDP
+socket, moving a point-mass buoy; the Vessel is the code `bob-autonomy run` executes.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from bob_autonomy.behavior_config import BehaviorChoice
+from bob_autonomy.clock import ScaledWallClock
+from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.interfaces import AgentState, Pose
+from bob_autonomy.mesh import (
+    MAX_PACKET_BYTES,
+    PacketError,
+    PacketReader,
+    decode_state,
+    encode_state,
+    packet_agent_id,
+)
+from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
+from sitl.mavlink_vehicle import SimulatedVehicle
+
+ORIGIN = (1.3405, 103.9560)
+SCALE = 5.0  # the vessel's and the stand-in vehicle's clocks run 5x wall time
+
+
+def _state(agent: int = 7, memory: dict | None = None) -> AgentState:
+    return AgentState(agent, 12.5, Pose(101.25, -40.5, 1.0, 0.25, -0.5), memory or {})
+
+
+# -- mesh packets ----------------------------------------------------------------------------------------
+
+
+def test_packet_round_trip_keeps_the_state_to_float32() -> None:
+    memory = {"target_light": np.array([3.0, 4.0]), "heading_goal": np.array([0.5])}
+    packet = encode_state(_state(memory=memory), ["heading_goal", "target_light"])
+    assert len(packet) <= MAX_PACKET_BYTES
+    state = decode_state(packet, ["heading_goal", "target_light"])
+    assert state.agent_id == 7 and state.t == 12.5
+    assert (state.pose.x, state.pose.y, state.pose.vx, state.pose.vy) == (101.25, -40.5, 0.25, -0.5)
+    assert state.pose.heading == pytest.approx(1.0, abs=1e-7)
+    np.testing.assert_array_equal(state.memory["target_light"], [3.0, 4.0])
+    np.testing.assert_array_equal(state.memory["heading_goal"], [0.5])
+    assert packet_agent_id(packet) == 7
+
+
+def test_corrupt_packets_are_rejected_with_the_reason() -> None:
+    packet = bytearray(encode_state(_state(), []))
+    packet[20] ^= 0x40
+    with pytest.raises(PacketError, match="CRC"):
+        decode_state(bytes(packet), [])
+    assert packet_agent_id(bytes(packet)) is None
+    with pytest.raises(PacketError, match="shorter"):
+        decode_state(b"BoB\x01", [])
+    with pytest.raises(PacketError, match="the radio takes 100"):
+        encode_state(_state(memory={"big": np.zeros(30)}), ["big"])
+
+
+def test_stream_reader_resynchronises_after_noise() -> None:
+    a, b = encode_state(_state(1), []), encode_state(_state(2), [])
+    broken = bytearray(encode_state(_state(3), []))
+    broken[-1] ^= 0xFF
+    stream = b"noise BoB" + a + bytes(broken) + b"\x00BoB\x01\xff" + b
+    reader = PacketReader()
+    out = []
+    for k in range(0, len(stream), 7):  # any chunking
+        out += reader.feed(stream[k : k + 7])
+    assert [packet_agent_id(p) for p in out] == [1, 2]
+    assert reader.bad >= 2 and reader.packets == 2
+
+
+# -- a Vessel against the simulator's autopilot over UDP -------------------------------------------------
+
+
+class StandInVehicle(threading.Thread):
+    """SimulatedVehicle on a UDP socket moving a point-mass buoy (1 m/s at full thrust), GPS 5 Hz, compass 10 Hz."""
+
+    def __init__(self, start_xy=(0.0, 0.0)) -> None:
+        super().__init__(daemon=True)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.01)
+        self.port = self.sock.getsockname()[1]
+        self.vehicle = SimulatedVehicle(1, "buoy", 45.0, failsafe_s=1.0)
+        self.frame = LocalFrame(*ORIGIN)
+        self.clock = ScaledWallClock(SCALE)
+        self.position = np.array(start_xy, dtype=float)
+        self.heading = 0.3
+        self.peer = None
+        self.running = threading.Event()
+        self.running.set()
+        self.muted = threading.Event()
+        self.applied: list[np.ndarray] = []
+
+    def run(self) -> None:
+        last = self.clock.now()
+        next_gps = next_att = last
+        while self.running.is_set():
+            try:
+                data, self.peer = self.sock.recvfrom(65535)
+                replies = self.vehicle.receive(data, self.clock.now())
+                if replies:
+                    self.sock.sendto(replies, self.peer)
+            except TimeoutError:
+                pass
+            now = self.clock.now()
+            thrust = self.vehicle.actuator(now)
+            self.applied.append(thrust)
+            c, s = math.cos(self.heading), math.sin(self.heading)
+            world = np.array([c * thrust[0] - s * thrust[1], s * thrust[0] + c * thrust[1]])
+            velocity = world / 45.0
+            self.position += velocity * (now - last)
+            last = now
+            if self.peer is None or self.muted.is_set():
+                continue
+            out = self.vehicle.housekeeping(now)
+            if now >= next_gps:
+                next_gps = now + 0.2
+                lat, lon = self.frame.to_geodetic(self.position[0], self.position[1])
+                out += self.vehicle.telemetry.gps_raw_int(now, float(lat), float(lon), velocity)
+            if now >= next_att:
+                next_att = now + 0.1
+                out += self.vehicle.telemetry.attitude(now, self.heading)
+            if out:
+                self.sock.sendto(out, self.peer)
+
+    def close(self) -> None:
+        self.running.clear()
+        self.join(2.0)
+        self.sock.close()
+
+
+def _config(port: int, **overrides) -> VesselConfig:
+    choice = BehaviorChoice(behavior="bob-rule", params={"goal": [30.0, 0.0], "H": 1, "p0": 5.0, "max_speed": 1.0})
+    options = {"time_scale": SCALE, "controller": "simple", "arm_timeout_s": 5.0, "heartbeat_timeout_s": 3.0}
+    options.update(overrides)
+    return VesselConfig(vehicle=f"udpout:127.0.0.1:{port}", system_id=1, behavior=choice, origin=ORIGIN, **options)
+
+
+@pytest.fixture
+def stand_in():
+    vehicle = StandInVehicle()
+    vehicle.start()
+    yield vehicle
+    vehicle.close()
+
+
+def test_vessel_arms_its_vehicle_and_drives_it_to_the_goal(stand_in: StandInVehicle) -> None:
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    stats = vessel.run(duration_s=25.0)
+    assert stand_in.vehicle.armed, "the vessel armed its vehicle with COMMAND_LONG + COMMAND_ACK"
+    assert stand_in.vehicle.counters.commands > 50
+    assert stand_in.position[0] > 7.0, f"moved east towards the goal: {stand_in.position}"
+    assert abs(stand_in.position[1]) < 5.0
+    assert stats.commands > 50 and stats.step_errors == 0
+    time.sleep(0.1)
+    np.testing.assert_allclose(stand_in.vehicle.actuator(stand_in.vehicle._last_command_s), [0.0, 0.0], atol=1e-9)
+    summary = stats.summary()
+    assert summary["compute_latency_s_median"] < summary["compute_latency_s_p99"] + 1e-12
+
+
+def test_vessel_stops_and_raises_an_alarm_when_its_vehicle_goes_silent(stand_in: StandInVehicle) -> None:
+    vessel = Vessel(_config(stand_in.port, heartbeat_timeout_s=2.0), clock=ScaledWallClock(SCALE))
+    timer = threading.Timer(1.5, stand_in.muted.set)  # wall s: ~7.5 clock s into the run
+    timer.start()
+    stats = vessel.run(duration_s=20.0)
+    timer.cancel()
+    assert stats.silent_alarms == 1
+    recent = stand_in.vehicle._command  # the last command the vehicle received
+    np.testing.assert_allclose(recent, [0.0, 0.0], atol=1e-9)
+
+
+def test_an_unanswering_vehicle_is_a_clear_error() -> None:
+    quiet = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    quiet.bind(("127.0.0.1", 0))
+    try:
+        vessel = Vessel(_config(quiet.getsockname()[1], arm_timeout_s=1.0), clock=ScaledWallClock(SCALE))
+        with pytest.raises(VehicleError, match=r"did not acknowledge arming within 1.0 s \(heartbeat never seen\)"):
+            vessel.run(duration_s=5.0)
+        vessel.shutdown()
+    finally:
+        quiet.close()
+
+
+def test_the_command_line_rejects_a_bad_behaviour_clearly() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "bob_autonomy.cli", "run", "--vehicle", "udpout:127.0.0.1:5760", "--system-id", "1",
+         "--behavior", "no-such-thing", "--origin", "1.3,103.9"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2
+    assert "unknown behavior 'no-such-thing'" in result.stderr
