@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 import select
 import socket
+import sys
 
 import serial
 
@@ -23,6 +24,15 @@ __all__ = ["Link", "LinkError", "SerialLink", "TcpLink", "UdpLink", "open_link",
 
 class LinkError(OSError):
     """A link could not be opened or used; the message names the connection string."""
+
+
+if sys.platform != "win32":
+    import termios
+
+    # pyserial lets termios.error (not an OSError) escape when a port that has gone away is flushed.
+    _SERIAL_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, termios.error)
+else:  # pragma: no cover - Windows
+    _SERIAL_ERRORS = (serial.SerialException, OSError)
 
 
 def parse_connection_string(connection: str) -> tuple[str, str, int | None]:
@@ -169,7 +179,7 @@ class SerialLink(Link):
         try:
             self.port.write(bytes(data))
             self.port.flush()
-        except (serial.SerialException, OSError) as exc:
+        except _SERIAL_ERRORS as exc:
             raise LinkError(f"cannot write to {self.connection!r}: {exc}") from exc
 
     def read(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> bytes:
@@ -180,7 +190,7 @@ class SerialLink(Link):
                 return b""
             self.port.timeout = 0
             return first + self.port.read(max(0, max_bytes - 1))
-        except (serial.SerialException, OSError) as exc:
+        except _SERIAL_ERRORS as exc:
             raise LinkError(f"cannot read from {self.connection!r}: {exc}") from exc
 
     def close(self) -> None:

@@ -85,6 +85,22 @@ def test_serial_over_pseudo_terminal_both_ways():
         os.close(slave)
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
+def test_an_unplugged_serial_port_is_a_link_error_naming_it():
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    link = open_link(device)
+    os.close(slave)
+    os.close(master)  # the device goes away under the open port
+    try:
+        with pytest.raises(LinkError, match=device):
+            for _ in range(3):  # the first write may still be buffered; a read or a later write fails
+                link.write(commands.heartbeat())
+                link.read(64, 0.05)
+    finally:
+        link.close()
+
+
 def test_missing_serial_device_names_the_path():
     path = "/dev/ttyDOES_NOT_EXIST_42"
     with pytest.raises(LinkError, match="ttyDOES_NOT_EXIST_42"):
