@@ -1,0 +1,1075 @@
+"""The autonomy process as a MAVLink component of its vessel (MAV_COMP_ID_ONBOARD_COMPUTER, 191).
+
+Transport-agnostic: `GcsComponent.receive(data)` takes whatever bytes a link delivered, `outgoing()` returns
+the frames to send, `tick()` is called often (say at 10 Hz or more) for the 1 Hz HEARTBEAT, position
+reports and protocol timeouts. The process wires it to a UDP link, drains `pending_autopilot` (arm, disarm,
+mode changes it must pass on to the autopilot) and reads `behavior_running`, `goals`, `fence` and `params`.
+
+Protocols (docs/gcs-protocol.md has the tables):
+
+- parameters: PARAM_REQUEST_LIST, PARAM_REQUEST_READ (by id or index), PARAM_SET, each answered with
+  PARAM_VALUE (index, count, the value actually in force; INT32 values are sent C-cast to float, as
+  ArduPilot does). A refused PARAM_SET is answered with the unchanged value and a STATUSTEXT saying why.
+- COMMAND_LONG / COMMAND_INT, answered with COMMAND_ACK: MISSION_START, DO_PAUSE_CONTINUE, arm / disarm and
+  DO_SET_MODE (handed to the process), DO_REPOSITION / NAV_WAYPOINT (goal), DO_FOLLOW (leader),
+  USER_1 (behaviour), DO_FENCE_ENABLE, REQUEST_MESSAGE / REQUEST_AUTOPILOT_CAPABILITIES; others
+  MAV_RESULT_UNSUPPORTED.
+- missions: upload (MISSION_COUNT, then our MISSION_REQUEST_INT, answered by MISSION_ITEM_INT or the legacy
+  MISSION_ITEM) and download (MISSION_REQUEST_LIST, MISSION_REQUEST_INT or MISSION_REQUEST) of the goal
+  waypoints (MISSION), a geofence inclusion polygon (FENCE) and one rally point (RALLY); MISSION_CLEAR_ALL.
+- STATUSTEXT for events (`notify`), chunked beyond 50 characters.
+
+Messages are handled when their target system is ours or 0 (broadcast: the whole fleet) and their target
+component ours or 0; others are counted (`counters.ignored_other_target`) and dropped.
+
+Signing (`MavlinkCodec`): with a key, every frame we send is MAVLink 2 signed, and a received frame is
+accepted only if it is signed with the key (SHA-256 of key + frame, first 48 bits) and its timestamp is
+newer than the last one accepted from the same (link id, system, component); a stream not seen before must
+not be more than 60 s older than our own clock. Unsigned (`unsigned_rejected`), wrongly signed
+(`bad_signature`) and replayed or stale (`replay_rejected`) frames are counted and dropped. RADIO_STATUS and
+RADIO, which telemetry radios inject unsigned, are let through as MAVProxy does (we do nothing with them).
+The signature is checked before the timestamp is recorded, so a forged frame cannot advance a stream.
+Without a key everything is accepted, signed or not (signatures then unchecked).
+
+Nothing raises out of `receive`: noise, truncated frames, bad checksums and exceptions in the handlers are
+counted (`counters.malformed`, `counters.handler_errors`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import logging
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.params import (
+    FAILSAFE_ACTIONS,
+    MAX_FENCE_VERTICES,
+    MAX_GOALS,
+    LatLon,
+    ParamError,
+    ParameterStore,
+    validate_latlon,
+)
+
+__all__ = [
+    "COMPONENT_ID",
+    "AutopilotCommand",
+    "GcsComponent",
+    "GcsCounters",
+    "MavlinkCodec",
+    "SigningKeyError",
+    "load_signing_key",
+    "passphrase_to_key",
+    "signing_timestamp",
+]
+
+logger = logging.getLogger(__name__)
+
+COMPONENT_ID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
+SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01 00:00:00 UTC: MAVLink 2 signing timestamps count from here
+NEW_STREAM_WINDOW = 60 * 100_000  # 60 s in the signing timestamp's 10 us units
+ALLOWED_UNSIGNED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_RADIO})
+STATUSTEXT_LEN = 50
+MAX_OUTGOING = 10_000  # frames held for outgoing() at most
+
+_V1 = mavlink.PROTOCOL_MARKER_V1
+_V2 = mavlink.PROTOCOL_MARKER_V2
+_SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+_SIG_LEN = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN  # 13: link id, 6-byte timestamp, 6-byte signature
+_HEADER_LEN = {_V1: mavlink.HEADER_LEN_V1, _V2: mavlink.HEADER_LEN_V2}
+_MAX_BUFFER = 65536
+
+GLOBAL_FRAMES = frozenset(
+    {
+        mavlink.MAV_FRAME_GLOBAL,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        mavlink.MAV_FRAME_GLOBAL_INT,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+        mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+    }
+)
+MISSION_TYPES = (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_FENCE, mavlink.MAV_MISSION_TYPE_RALLY)
+# The one mission command each mission type takes.
+MISSION_ITEM_COMMAND = {
+    mavlink.MAV_MISSION_TYPE_MISSION: mavlink.MAV_CMD_NAV_WAYPOINT,
+    mavlink.MAV_MISSION_TYPE_FENCE: mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+    mavlink.MAV_MISSION_TYPE_RALLY: mavlink.MAV_CMD_NAV_RALLY_POINT,
+}
+MISSION_CAPACITY = {
+    mavlink.MAV_MISSION_TYPE_MISSION: MAX_GOALS,
+    mavlink.MAV_MISSION_TYPE_FENCE: MAX_FENCE_VERTICES,
+    mavlink.MAV_MISSION_TYPE_RALLY: 1,
+}
+CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+)
+ARM_FORCE_MAGIC = 21196.0  # param2 of MAV_CMD_COMPONENT_ARM_DISARM that forces it
+
+
+# -- signing keys ---------------------------------------------------------------------------------------------
+
+
+class SigningKeyError(ValueError):
+    """A signing key file could not be read or used; the message names the file."""
+
+
+def passphrase_to_key(passphrase: str) -> bytes:
+    """The 32-byte key MAVProxy's `signing setup PASSPHRASE` / `signing key PASSPHRASE` derive: SHA-256 of
+    the passphrase's bytes (UTF-8; MAVProxy passes ASCII)."""
+    return hashlib.sha256(passphrase.encode("utf-8")).digest()
+
+
+def load_signing_key(path: str | os.PathLike[str]) -> bytes:
+    """Read a signing key file: exactly 32 bytes are the raw key; anything else is a passphrase (UTF-8
+    text, surrounding white space and the final newline stripped) whose SHA-256 is the key, as MAVProxy
+    derives it. SigningKeyError for a missing, unreadable or empty file."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise SigningKeyError(f"cannot read signing key file {p}: {exc}") from exc
+    if len(data) == 32:
+        return data
+    try:
+        passphrase = data.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        raise SigningKeyError(
+            f"signing key file {p}: {len(data)} bytes that are not UTF-8 text: neither a 32-byte raw key nor a "
+            "passphrase"
+        ) from None
+    if not passphrase:
+        raise SigningKeyError(f"signing key file {p} is empty")
+    return passphrase_to_key(passphrase)
+
+
+def signing_timestamp(unix_time_s: float) -> int:
+    """A MAVLink 2 signing timestamp (10 us units since 2015-01-01 UTC) from a Unix time in seconds."""
+    return int((max(float(unix_time_s), SIGNING_EPOCH_UNIX_S) - SIGNING_EPOCH_UNIX_S) * 100_000)
+
+
+# -- counters and the codec -----------------------------------------------------------------------------------
+
+
+@dataclass
+class GcsCounters:
+    """What a codec / component has seen. Frames: every complete candidate frame (`frames`) is exactly one
+    of `accepted`, `malformed` (bad checksum, header, length or payload), `unknown_id` (a message id the
+    dialect does not know), `unsigned_rejected`, `bad_signature`, `replay_rejected`. `skipped_bytes` is
+    noise between frames. The component adds what it did with accepted messages."""
+
+    bytes_received: int = 0
+    frames: int = 0
+    accepted: int = 0
+    malformed: int = 0
+    unknown_id: int = 0
+    skipped_bytes: int = 0
+    unsigned_rejected: int = 0
+    bad_signature: int = 0
+    replay_rejected: int = 0
+    sent: int = 0
+    ignored_other_target: int = 0
+    ignored_message: int = 0
+    handler_errors: int = 0
+    commands: int = 0
+    commands_unsupported: int = 0
+    commands_denied: int = 0
+    params_set: int = 0
+    params_rejected: int = 0
+    mission_uploads: int = 0
+    mission_errors: int = 0
+    mission_retries: int = 0
+    dropped_outgoing: int = 0
+
+
+class MavlinkCodec:
+    """MAVLink 2 framing, checking and signing for one endpoint (our system and component ids).
+
+    `decode(data)` returns the messages completed by `data` (stream semantics: a partial frame waits for
+    the next call; `datagram=True` drops a trailing partial frame instead, right for UDP where a datagram
+    holds whole frames). `pack(message)` returns the bytes of one frame, signed when a key is set.
+    Never raises from `decode`; see the module docstring for the signing rules.
+    """
+
+    def __init__(
+        self,
+        system_id: int,
+        component_id: int,
+        *,
+        signing_key: bytes | None = None,
+        link_id: int = 0,
+        wall_clock: Callable[[], float] = time.time,
+        counters: GcsCounters | None = None,
+    ) -> None:
+        if signing_key is not None and len(signing_key) != 32:
+            raise SigningKeyError(f"a MAVLink 2 signing key is 32 bytes, got {len(signing_key)}")
+        if not 1 <= system_id <= 255 or not 0 <= component_id <= 255:
+            raise ValueError(f"bad MAVLink ids: system {system_id}, component {component_id}")
+        self.signing_key = bytes(signing_key) if signing_key is not None else None
+        self.wall_clock = wall_clock
+        self.counters = counters if counters is not None else GcsCounters()
+        self.mav = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        if self.signing_key is not None:
+            self.mav.signing.secret_key = self.signing_key
+            self.mav.signing.sign_outgoing = True
+            self.mav.signing.link_id = int(link_id) & 0xFF
+            self.mav.signing.timestamp = signing_timestamp(wall_clock())
+        self._decoder = mavlink.MAVLink(None)  # no key: signatures are checked here, not by pymavlink
+        self._buf = bytearray()
+        self.streams: dict[tuple[int, int, int], int] = {}  # (link id, system, component) -> last timestamp
+
+    @property
+    def system_id(self) -> int:
+        return self.mav.srcSystem
+
+    @property
+    def component_id(self) -> int:
+        return self.mav.srcComponent
+
+    # -- sending -------------------------------------------------------------------------------------------
+
+    def pack(self, message: mavlink.MAVLink_message) -> bytes:
+        """One frame from this endpoint, with the next sequence number (and a signature when keyed)."""
+        if self.signing_key is not None:
+            # Timestamps must increase and should follow the wall clock (the receiver compares new streams
+            # with its own clock); pymavlink adds one per frame.
+            self.mav.signing.timestamp = max(self.mav.signing.timestamp, signing_timestamp(self.wall_clock()))
+        data = bytes(message.pack(self.mav))
+        self.mav.seq = (self.mav.seq + 1) % 256
+        self.counters.sent += 1
+        return data
+
+    # -- receiving -----------------------------------------------------------------------------------------
+
+    def decode(self, data: bytes, *, datagram: bool = False) -> list[mavlink.MAVLink_message]:
+        """Messages completed by `data`, in order; everything else counted (never raises)."""
+        messages: list[mavlink.MAVLink_message] = []
+        try:
+            self.counters.bytes_received += len(data)
+            self._buf.extend(data)
+            self._frame(messages)
+            if datagram or len(self._buf) > _MAX_BUFFER:
+                self.counters.skipped_bytes += len(self._buf)
+                self._buf.clear()
+        except Exception:  # defensive: nothing escapes into the caller
+            logger.debug("MAVLink decode failed", exc_info=True)
+            self.counters.malformed += 1
+            self.counters.skipped_bytes += len(self._buf)
+            self._buf.clear()
+        return messages
+
+    def _frame(self, messages: list[mavlink.MAVLink_message]) -> None:
+        c = self.counters
+        buf = self._buf
+        n = len(buf)
+        pos = 0
+        while pos < n:
+            start = _next_marker(buf, pos)
+            if start < 0:
+                c.skipped_bytes += n - pos
+                pos = n
+                break
+            c.skipped_bytes += start - pos
+            pos = start
+            magic = buf[pos]
+            if n - pos < 3:
+                break
+            length = _HEADER_LEN[magic] + buf[pos + 1] + 2
+            if magic == _V2 and buf[pos + 2] & _SIGNED:
+                length += _SIG_LEN
+            if n - pos < length:
+                break  # wait for the rest
+            frame = bytearray(buf[pos : pos + length])
+            c.frames += 1
+            verdict, msg = self._check(frame, magic, end=pos + length, n=n)
+            if verdict == "bad":
+                c.malformed += 1
+                c.skipped_bytes += 1
+                pos += 1  # resynchronise one byte on: a real frame may start inside this one
+                continue
+            pos += length
+            if verdict == "unknown":
+                c.unknown_id += 1
+                continue
+            rejection = self._authenticate(frame, magic)
+            if rejection is not None:
+                setattr(c, rejection, getattr(c, rejection) + 1)
+                continue
+            c.accepted += 1
+            messages.append(msg)
+        del buf[:pos]
+
+    def _check(self, frame: bytearray, magic: int, end: int, n: int):
+        """("ok", message), ("unknown", None) or ("bad", None) for one complete candidate frame."""
+        if magic == _V2:
+            if frame[2] & ~_SIGNED:
+                return "bad", None
+            msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
+        else:
+            msg_id = frame[5]
+        msg_type = mavlink.mavlink_map.get(msg_id)
+        if msg_type is None:
+            # The checksum of an unknown message cannot be verified: believe the frame only when another
+            # frame (or the end of the data) follows it.
+            if end == n or self._buf[end] in (_V1, _V2):
+                return "unknown", None
+            return "bad", None
+        sig_len = _SIG_LEN if (magic == _V2 and frame[2] & _SIGNED) else 0
+        crc_end = len(frame) - sig_len
+        crcbuf = frame[1 : crc_end - 2]
+        crcbuf.append(msg_type.crc_extra)
+        if mavlink.x25crc(crcbuf).crc != frame[crc_end - 2] | (frame[crc_end - 1] << 8):
+            return "bad", None
+        try:
+            return "ok", self._decoder.decode(frame)
+        except Exception:
+            return "bad", None
+
+    def _authenticate(self, frame: bytearray, magic: int) -> str | None:
+        """None if the frame may be used, else the name of the counter of its rejection."""
+        key = self.signing_key
+        if key is None:
+            return None
+        signed = magic == _V2 and bool(frame[2] & _SIGNED)
+        if not signed:
+            msg_id = (frame[7] | (frame[8] << 8) | (frame[9] << 16)) if magic == _V2 else frame[5]
+            return None if msg_id in ALLOWED_UNSIGNED else "unsigned_rejected"
+        expected = hashlib.sha256(key + bytes(frame[:-6])).digest()[:6]
+        if not hmac.compare_digest(expected, bytes(frame[-6:])):
+            return "bad_signature"
+        link_id = frame[-13]
+        timestamp = int.from_bytes(frame[-12:-6], "little")
+        stream = (link_id, frame[5], frame[6])  # v2 header: system at 5, component at 6
+        last = self.streams.get(stream)
+        if last is None:
+            now = max(self.mav.signing.timestamp, signing_timestamp(self.wall_clock()))
+            if timestamp + NEW_STREAM_WINDOW < now:
+                return "replay_rejected"
+        elif timestamp <= last:
+            return "replay_rejected"
+        self.streams[stream] = timestamp
+        self.mav.signing.timestamp = max(self.mav.signing.timestamp, timestamp)
+        return None
+
+
+def _next_marker(buf: bytearray, pos: int) -> int:
+    a = buf.find(bytes([_V1]), pos)
+    b = buf.find(bytes([_V2]), pos)
+    if a < 0:
+        return b
+    if b < 0:
+        return a
+    return min(a, b)
+
+
+# -- the component ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AutopilotCommand:
+    """A command for the autopilot that came to us; the process passes it on (e.g. with
+    firmware_bridge.commands.command_long_arm / set_mode). `kind` is "arm", "disarm" or "set_mode";
+    `force` (arm / disarm with param2 = 21196); `base_mode` and `custom_mode` of DO_SET_MODE (for an
+    ArduPilot Rover, custom_mode is the mode number: HOLD 4, AUTO 10, GUIDED 15, ...); `params` the seven
+    raw parameters; `source` the (system, component) that sent it; `t_s` our clock at reception."""
+
+    kind: str
+    command: int
+    params: tuple[float, ...]
+    source: tuple[int, int]
+    t_s: float
+    force: bool = False
+    base_mode: int | None = None
+    custom_mode: int | None = None
+
+
+@dataclass
+class _Upload:
+    peer: tuple[int, int]
+    mission_type: int
+    count: int
+    received: int = 0  # items received so far = the next sequence number wanted
+    points: list[LatLon] = field(default_factory=list)  # waypoints, fence vertices or the rally point
+    vertex_counts: list[float] = field(default_factory=list)  # param1 of each fence vertex
+    return_point: LatLon | None = None  # a fence's MAV_CMD_NAV_FENCE_RETURN_POINT, taken as the rally point
+    last_request_s: float = 0.0
+    retries: int = 0
+
+
+@dataclass
+class _Command:
+    command: int
+    params: tuple[float, float, float, float, float, float, float]
+    latlon: tuple[float, float]  # params 5 and 6 read as latitude and longitude, deg
+    source: tuple[int, int]
+
+
+Handler = Callable[["GcsComponent", _Command], int]
+
+
+class GcsComponent:
+    """The autonomy process's MAVLink component (see the module docstring).
+
+    system_id: the vessel's MAVLink system id (the autopilot's). params: the ParameterStore it serves.
+    component_id: 191 (MAV_COMP_ID_ONBOARD_COMPUTER). signing_key: 32 bytes, or None for no signing.
+    clock: monotonic seconds for periods and timeouts; wall_clock: Unix seconds for signing timestamps.
+    heartbeat_period_s: HEARTBEAT period (1 s). mission_timeout_s / mission_retries: how long to wait for a
+    requested mission item before asking again, and how many times, before the upload is cancelled.
+
+    State the process reads: `behavior_running` (bool), `goals` and `fence` (lists of (lat, lon) deg),
+    `params`, `pending_autopilot` (AutopilotCommand list; `take_autopilot_commands()` drains it),
+    `gcs_lost` (BOB_GCS_FS_S elapsed without a ground-station HEARTBEAT, after one was heard),
+    `counters`.
+    """
+
+    def __init__(
+        self,
+        system_id: int,
+        params: ParameterStore,
+        *,
+        component_id: int = COMPONENT_ID,
+        signing_key: bytes | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], float] = time.time,
+        heartbeat_period_s: float = 1.0,
+        mission_timeout_s: float = 1.5,
+        mission_retries: int = 5,
+    ) -> None:
+        self.params = params
+        self.clock = clock
+        self.counters = GcsCounters()
+        self.codec = MavlinkCodec(
+            system_id, component_id, signing_key=signing_key, wall_clock=wall_clock, counters=self.counters
+        )
+        self.system_id = system_id
+        self.component_id = component_id
+        self.heartbeat_period_s = float(heartbeat_period_s)
+        self.mission_timeout_s = float(mission_timeout_s)
+        self.mission_retries = int(mission_retries)
+        self.behavior_running = False
+        self.pending_autopilot: list[AutopilotCommand] = []
+        self.gcs_lost = False
+        self.last_gcs_heartbeat_s: float | None = None
+        self._out: list[bytes] = []
+        self._t0 = float(clock())
+        self._last_heartbeat_s: float | None = None
+        self._position: tuple[float, ...] | None = None
+        self._last_position_s: float | None = None
+        self._upload: _Upload | None = None
+        self._last_upload: tuple[tuple[int, int], int, int, int] | None = None  # peer, type, count, result
+        self._statustext_id = 0
+        if params.load_problem:
+            self.notify(mavlink.MAV_SEVERITY_WARNING, params.load_problem)
+
+    # -- public interface ----------------------------------------------------------------------------------
+
+    @property
+    def goals(self) -> list[LatLon]:
+        """Goal waypoints (lat, lon) in degrees, in order (mission upload or set-goal command)."""
+        return self.params.goals
+
+    @property
+    def fence(self) -> list[LatLon]:
+        """Geofence inclusion polygon (lat, lon) in degrees; empty when none was uploaded."""
+        return self.params.fence
+
+    @property
+    def fence_enabled(self) -> bool:
+        """BOB_FENCE_EN is 1 and a polygon of at least 3 vertices is set."""
+        return bool(self.params.get("BOB_FENCE_EN")) and len(self.fence) >= 3
+
+    def receive(self, data: bytes, *, datagram: bool = False) -> None:
+        """Handle received bytes (any chunking; `datagram=True` when `data` is one whole UDP datagram).
+        Never raises: bad input and handler failures are counted."""
+        for msg in self.codec.decode(data, datagram=datagram):
+            try:
+                self._handle(msg)
+            except Exception:
+                self.counters.handler_errors += 1
+                logger.exception("error handling %s", msg.get_type())
+
+    def outgoing(self) -> list[bytes]:
+        """The frames to send since the last call (each one MAVLink frame), oldest first."""
+        out, self._out = self._out, []
+        return out
+
+    def tick(self) -> None:
+        """Periodic work: HEARTBEAT (every heartbeat_period_s), GLOBAL_POSITION_INT (at BOB_POS_HZ, once a
+        position was reported), mission upload timeouts, the ground-station failsafe."""
+        now = float(self.clock())
+        if self._last_heartbeat_s is None or now - self._last_heartbeat_s >= self.heartbeat_period_s:
+            self._last_heartbeat_s = now
+            self._send_heartbeat()
+        rate = float(self.params.get("BOB_POS_HZ"))
+        if (
+            self._position is not None
+            and rate > 0
+            and (self._last_position_s is None or now - self._last_position_s >= 1.0 / rate)
+        ):
+            self._last_position_s = now
+            self._send_position()
+        self._check_upload_timeout(now)
+        self._check_gcs_failsafe(now)
+
+    def notify(self, severity: int, text: str) -> None:
+        """Report an event with STATUSTEXT (MAV_SEVERITY_*; 0 emergency .. 7 debug); text longer than 50
+        characters goes in chunks that share an id. Also logged."""
+        logger.log(_LOG_LEVEL.get(severity, logging.INFO), "%s", text)
+        data = text.encode("ascii", errors="replace")
+        if len(data) <= STATUSTEXT_LEN:
+            self._queue(self.codec.mav.statustext_encode(severity, data, 0, 0))
+            return
+        self._statustext_id = self._statustext_id % 65535 + 1
+        chunks = [data[i : i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
+        if len(chunks[-1]) == STATUSTEXT_LEN:
+            chunks.append(b"")  # a full last chunk is followed by an empty one to mark the end
+        for seq, chunk in enumerate(chunks[:256]):
+            self._queue(self.codec.mav.statustext_encode(severity, chunk, self._statustext_id, seq))
+
+    def report_position(
+        self,
+        lat_deg: float,
+        lon_deg: float,
+        v_east_mps: float = 0.0,
+        v_north_mps: float = 0.0,
+        heading_rad: float | None = None,
+        alt_m: float = 0.0,
+    ) -> None:
+        """The process's estimate of the vessel's position (WGS-84 deg), ground velocity (m/s, east and
+        north) and heading (rad from east, counter-clockwise; None if unknown); sent as
+        GLOBAL_POSITION_INT from this component at BOB_POS_HZ by `tick`."""
+        self._position = (float(lat_deg), float(lon_deg), float(v_east_mps), float(v_north_mps),
+                          heading_rad, float(alt_m))  # fmt: skip
+
+    def take_autopilot_commands(self) -> list[AutopilotCommand]:
+        """Drain `pending_autopilot`."""
+        out, self.pending_autopilot = self.pending_autopilot, []
+        return out
+
+    def fence_contains(self, lat_deg: float, lon_deg: float) -> bool | None:
+        """Whether the point is inside the fence polygon; None when no fence is set (or fewer than 3
+        vertices). Computed in a local tangent plane at the first vertex (fine over a few km)."""
+        fence = self.fence
+        if len(fence) < 3:
+            return None
+        return point_in_polygon((lat_deg, lon_deg), fence)
+
+    # -- dispatch ------------------------------------------------------------------------------------------
+
+    def _queue(self, message: mavlink.MAVLink_message) -> None:
+        if len(self._out) >= MAX_OUTGOING:  # nobody drains outgoing(): drop the oldest rather than grow
+            del self._out[0]
+            self.counters.dropped_outgoing += 1
+        self._out.append(self.codec.pack(message))
+
+    def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            if msg.type == mavlink.MAV_TYPE_GCS:
+                self._gcs_heartbeat()
+            return
+        handler = _HANDLERS.get(kind)
+        if handler is None:
+            self.counters.ignored_message += 1
+            return
+        if msg.target_system not in (0, self.system_id) or msg.target_component not in (0, self.component_id):
+            self.counters.ignored_other_target += 1
+            return
+        handler(self, msg)
+
+    def _gcs_heartbeat(self) -> None:
+        self.last_gcs_heartbeat_s = float(self.clock())
+        if self.gcs_lost:
+            self.gcs_lost = False
+            self.notify(mavlink.MAV_SEVERITY_NOTICE, "ground station link regained")
+
+    def _check_gcs_failsafe(self, now: float) -> None:
+        timeout = float(self.params.get("BOB_GCS_FS_S"))
+        if self.gcs_lost or timeout <= 0 or self.last_gcs_heartbeat_s is None:
+            return
+        if now - self.last_gcs_heartbeat_s > timeout:
+            self.gcs_lost = True
+            action = FAILSAFE_ACTIONS.get(int(self.params.get("BOB_GCS_FS_ACT")), "?")
+            self.notify(mavlink.MAV_SEVERITY_CRITICAL, f"ground station lost for {timeout:g} s: {action}")
+
+    # -- telemetry -----------------------------------------------------------------------------------------
+
+    def _time_boot_ms(self) -> int:
+        return int((float(self.clock()) - self._t0) * 1000) & 0xFFFFFFFF
+
+    def _send_heartbeat(self) -> None:
+        index = int(self.params.get("BOB_BEHAVIOR"))
+        custom_mode = (1 if self.behavior_running else 0) | (index << 8)
+        status = mavlink.MAV_STATE_ACTIVE if self.behavior_running else mavlink.MAV_STATE_STANDBY
+        self._queue(
+            self.codec.mav.heartbeat_encode(
+                mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+                mavlink.MAV_AUTOPILOT_INVALID,
+                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                custom_mode,
+                status,
+            )
+        )
+
+    def _send_position(self) -> None:
+        assert self._position is not None
+        lat, lon, ve, vn, heading, alt = self._position
+        if not (math.isfinite(lat) and math.isfinite(lon)):
+            return
+        if heading is None or not math.isfinite(heading):
+            hdg = 65535
+        else:
+            hdg = round((90.0 - math.degrees(heading)) * 100.0) % 36000  # cdeg from north, clockwise
+        self._queue(
+            self.codec.mav.global_position_int_encode(
+                self._time_boot_ms(),
+                _clamp_int32(round(lat * 1e7)),
+                _clamp_int32(round(lon * 1e7)),
+                _clamp_int32(round(alt * 1000)),
+                _clamp_int32(round(alt * 1000)),
+                _cm_s(vn),
+                _cm_s(ve),
+                0,
+                hdg,
+            )
+        )
+
+    def _send_autopilot_version(self) -> None:
+        zeros8 = [0] * 8
+        self._queue(self.codec.mav.autopilot_version_encode(CAPABILITIES, 0, 0, 0, 0, zeros8, zeros8, zeros8, 0, 0, 0))
+
+    # -- parameter protocol --------------------------------------------------------------------------------
+
+    def _send_param(self, name: str) -> None:
+        value = float(self.params.get(name))
+        spec = self.params.spec(name)
+        self._queue(
+            self.codec.mav.param_value_encode(
+                name.encode("ascii"), value, spec.mav_type, len(self.params), self.params.index(name)
+            )
+        )
+
+    def _param_request_list(self, msg) -> None:
+        for name in self.params.names():
+            self._send_param(name)
+
+    def _param_request_read(self, msg) -> None:
+        try:
+            name = self.params.name_at(msg.param_index) if msg.param_index >= 0 else msg.param_id
+            self.params.spec(name)
+        except ParamError as exc:
+            self.notify(mavlink.MAV_SEVERITY_WARNING, f"PARAM_REQUEST_READ: {exc}")
+            return
+        self._send_param(name)
+
+    def _param_set(self, msg) -> None:
+        name = msg.param_id
+        if name not in self.params:
+            self.counters.params_rejected += 1
+            self.notify(mavlink.MAV_SEVERITY_WARNING, f"PARAM_SET: unknown parameter {name!r}")
+            return
+        try:
+            self.params.set(name, float(msg.param_value))
+        except ParamError as exc:
+            self.counters.params_rejected += 1
+            self.notify(mavlink.MAV_SEVERITY_WARNING, str(exc))  # names the parameter and says why
+        else:
+            self.counters.params_set += 1
+            self._persist_warning()
+        self._send_param(name)
+
+    def _persist_warning(self) -> None:
+        if self.params.persist_error:
+            self.notify(mavlink.MAV_SEVERITY_ERROR, self.params.persist_error)
+
+    # -- commands ------------------------------------------------------------------------------------------
+
+    def _command_long(self, msg) -> None:
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+        cmd = _Command(msg.command, params, (msg.param5, msg.param6), (msg.get_srcSystem(), msg.get_srcComponent()))
+        self._run_command(cmd)
+
+    def _command_int(self, msg) -> None:
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
+        cmd = _Command(msg.command, params, (msg.x / 1e7, msg.y / 1e7), (msg.get_srcSystem(), msg.get_srcComponent()))
+        self._run_command(cmd)
+
+    def _run_command(self, cmd: _Command) -> None:
+        self.counters.commands += 1
+        handler = _COMMANDS.get(cmd.command)
+        if handler is None:
+            self.counters.commands_unsupported += 1
+            result = mavlink.MAV_RESULT_UNSUPPORTED
+        else:
+            try:
+                result = handler(self, cmd)
+            except ParamError as exc:
+                self.notify(mavlink.MAV_SEVERITY_WARNING, f"{_command_name(cmd.command)} refused: {exc}")
+                result = mavlink.MAV_RESULT_DENIED
+            except Exception:
+                self.counters.handler_errors += 1
+                logger.exception("command %s failed", cmd.command)
+                result = mavlink.MAV_RESULT_FAILED
+        if result == mavlink.MAV_RESULT_DENIED:
+            self.counters.commands_denied += 1
+        self._queue(self.codec.mav.command_ack_encode(cmd.command, result, 0, 0, cmd.source[0], cmd.source[1]))
+
+    def _cmd_mission_start(self, cmd: _Command) -> int:
+        self.behavior_running = True
+        self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour {self.params.behavior_name} started")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_pause_continue(self, cmd: _Command) -> int:
+        action = cmd.params[0]
+        if action == 0:
+            self.behavior_running = False
+            self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour {self.params.behavior_name} stopped: hold")
+        elif action == 1:
+            self.behavior_running = True
+            self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour {self.params.behavior_name} continued")
+        else:
+            raise ParamError(f"param1 must be 0 (pause) or 1 (continue), got {action!r}")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_forward(self, cmd: _Command) -> int:
+        p = cmd.params
+        now = float(self.clock())
+        if cmd.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            if p[0] not in (0.0, 1.0):
+                raise ParamError(f"param1 must be 1 (arm) or 0 (disarm), got {p[0]!r}")
+            kind = "arm" if p[0] == 1.0 else "disarm"
+            command = AutopilotCommand(kind, cmd.command, p, cmd.source, now, force=p[1] == ARM_FORCE_MAGIC)
+        else:
+            if not all(math.isfinite(v) and 0 <= v < 2**32 and v == int(v) for v in p[:2]):
+                raise ParamError(f"base mode {p[0]!r} and custom mode {p[1]!r} must be whole numbers")
+            command = AutopilotCommand(
+                "set_mode", cmd.command, p, cmd.source, now, base_mode=int(p[0]), custom_mode=int(p[1])
+            )
+        self.pending_autopilot.append(command)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_goal(self, cmd: _Command) -> int:
+        lat, lon = validate_latlon(cmd.latlon, "goal")
+        self.params.set_goals([(lat, lon)])
+        self._persist_warning()
+        self.notify(mavlink.MAV_SEVERITY_INFO, f"goal set to {lat:.7f}, {lon:.7f}")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_follow(self, cmd: _Command) -> int:
+        leader = self.params.set("BOB_LEADER_ID", cmd.params[0])
+        self._persist_warning()
+        self.notify(mavlink.MAV_SEVERITY_INFO, f"leader set to {leader}" if leader else "leader cleared")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_behavior(self, cmd: _Command) -> int:
+        self.params.set("BOB_BEHAVIOR", cmd.params[0])
+        self._persist_warning()
+        self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour set to {self.params.behavior_name}")
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_fence_enable(self, cmd: _Command) -> int:
+        self.params.set("BOB_FENCE_EN", cmd.params[0])
+        self._persist_warning()
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_request_message(self, cmd: _Command) -> int:
+        wanted = cmd.params[0]
+        if wanted == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            self._send_autopilot_version()
+        elif wanted == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            self._send_heartbeat()
+        elif wanted == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT and self._position is not None:
+            self._send_position()
+        else:
+            return mavlink.MAV_RESULT_DENIED
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_capabilities(self, cmd: _Command) -> int:
+        self._send_autopilot_version()
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    # -- mission protocol ----------------------------------------------------------------------------------
+
+    def _mission_ack(self, peer: tuple[int, int], mission_type: int, result: int) -> None:
+        self._queue(self.codec.mav.mission_ack_encode(peer[0], peer[1], result, mission_type))
+
+    def _request_item(self, up: _Upload) -> None:
+        # Always MISSION_REQUEST_INT (degE7 positions): QGroundControl, MAVProxy and Mission Planner answer it;
+        # a legacy MISSION_ITEM answer (float32 degrees, about 0.4 m steps) is accepted all the same.
+        up.last_request_s = float(self.clock())
+        self._queue(self.codec.mav.mission_request_int_encode(up.peer[0], up.peer[1], up.received, up.mission_type))
+
+    def _mission_count(self, msg) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mission_type = msg.mission_type
+        count = msg.count
+        if mission_type not in MISSION_TYPES:
+            self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        if self._upload is not None and self._upload.peer != peer:
+            self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_DENIED)  # busy with another upload
+            return
+        self._upload = None
+        if count > MISSION_CAPACITY[mission_type]:
+            self._mission_error(peer, mission_type, mavlink.MAV_MISSION_NO_SPACE,
+                                f"{count} items, at most {MISSION_CAPACITY[mission_type]}")  # fmt: skip
+            return
+        if mission_type == mavlink.MAV_MISSION_TYPE_FENCE and 0 < count < 3:
+            self._mission_error(peer, mission_type, mavlink.MAV_MISSION_INVALID, f"a fence needs 3 vertices, {count}")
+            return
+        if count == 0:
+            self._finish_upload(_Upload(peer, mission_type, 0))
+            return
+        self._upload = _Upload(peer, mission_type, count)
+        self._request_item(self._upload)
+
+    def _mission_item(self, msg) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        up = self._upload
+        if up is None or up.peer != peer or msg.mission_type != up.mission_type:
+            last = self._last_upload
+            if last is not None and last[:2] == (peer, msg.mission_type) and msg.seq == last[2] - 1:
+                self._mission_ack(peer, msg.mission_type, last[3])  # our final ACK was lost: say it again
+            return
+        expected = up.received
+        if msg.seq != expected:
+            if msg.seq > expected:
+                self._request_item(up)  # out of order: ask again for the one we need
+            return  # a duplicate of one we have: ignore
+        if msg.get_type() == "MISSION_ITEM_INT":
+            lat, lon = msg.x / 1e7, msg.y / 1e7
+        else:
+            lat, lon = float(msg.x), float(msg.y)
+        error = self._check_item(up, msg, lat, lon)
+        if error is not None:
+            result, why = error
+            self._upload = None
+            self._mission_error(peer, up.mission_type, result, f"item {msg.seq}: {why}")
+            return
+        up.received += 1
+        up.retries = 0
+        if msg.command == mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT:
+            up.return_point = (lat, lon)
+        else:
+            up.points.append((lat, lon))
+            up.vertex_counts.append(float(msg.param1))
+        if up.received == up.count:
+            self._upload = None
+            self._finish_upload(up)
+        else:
+            self._request_item(up)
+
+    def _check_item(self, up: _Upload, msg, lat: float, lon: float) -> tuple[int, str] | None:
+        wanted = {MISSION_ITEM_COMMAND[up.mission_type]}
+        if up.mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
+            wanted.add(mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT)
+        if msg.command not in wanted:
+            return mavlink.MAV_MISSION_UNSUPPORTED, f"command {msg.command} not supported here (only {sorted(wanted)})"
+        if msg.frame not in GLOBAL_FRAMES:
+            return mavlink.MAV_MISSION_UNSUPPORTED_FRAME, f"frame {msg.frame} is not a global frame"
+        if not (math.isfinite(lat) and -90.0 <= lat <= 90.0):
+            return mavlink.MAV_MISSION_INVALID_PARAM5_X, f"latitude {lat} out of range"
+        if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
+            return mavlink.MAV_MISSION_INVALID_PARAM6_Y, f"longitude {lon} out of range"
+        return None
+
+    def _finish_upload(self, up: _Upload) -> None:
+        try:
+            if up.mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
+                self.params.set_goals(up.points)
+                what = f"{len(up.points)} goal waypoints"
+            elif up.mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
+                if any(n != len(up.points) for n in up.vertex_counts):
+                    self._mission_error(up.peer, up.mission_type, mavlink.MAV_MISSION_UNSUPPORTED,
+                                        f"vertex counts {sorted(set(up.vertex_counts))} for {len(up.points)} vertices: "
+                                        "only one inclusion polygon is supported")  # fmt: skip
+                    return
+                self.params.set_fence(up.points)
+                if up.return_point is not None:
+                    self.params.set_many({"BOB_RALLY_LAT": up.return_point[0], "BOB_RALLY_LON": up.return_point[1]})
+                what = f"fence of {len(up.points)} vertices"
+            else:
+                lat, lon = up.points[0] if up.points else (0.0, 0.0)
+                self.params.set_many({"BOB_RALLY_LAT": lat, "BOB_RALLY_LON": lon})
+                what = "rally point"
+        except ParamError as exc:
+            self._mission_error(up.peer, up.mission_type, mavlink.MAV_MISSION_INVALID, str(exc))
+            self._last_upload = (up.peer, up.mission_type, up.count, mavlink.MAV_MISSION_INVALID)
+            return
+        self.counters.mission_uploads += 1
+        self._last_upload = (up.peer, up.mission_type, up.count, mavlink.MAV_MISSION_ACCEPTED)
+        self._mission_ack(up.peer, up.mission_type, mavlink.MAV_MISSION_ACCEPTED)
+        self._persist_warning()
+        self.notify(mavlink.MAV_SEVERITY_INFO, f"received {what}" if up.points else f"{what} cleared")
+
+    def _mission_error(self, peer: tuple[int, int], mission_type: int, result: int, why: str) -> None:
+        self.counters.mission_errors += 1
+        self._mission_ack(peer, mission_type, result)
+        self.notify(mavlink.MAV_SEVERITY_WARNING, f"{_MISSION_TYPE_NAMES.get(mission_type, mission_type)} upload "
+                    f"refused: {why}")  # fmt: skip
+
+    def _check_upload_timeout(self, now: float) -> None:
+        up = self._upload
+        if up is None or now - up.last_request_s < self.mission_timeout_s:
+            return
+        if up.retries >= self.mission_retries:
+            self._upload = None
+            self._mission_error(up.peer, up.mission_type, mavlink.MAV_MISSION_OPERATION_CANCELLED,
+                                f"no item {up.received} after {up.retries + 1} requests")  # fmt: skip
+            return
+        up.retries += 1
+        self.counters.mission_retries += 1
+        self._request_item(up)
+
+    def _mission_points(self, mission_type: int) -> list[LatLon] | None:
+        if mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
+            return self.goals
+        if mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
+            return self.fence
+        if mission_type == mavlink.MAV_MISSION_TYPE_RALLY:
+            lat, lon = float(self.params.get("BOB_RALLY_LAT")), float(self.params.get("BOB_RALLY_LON"))
+            return [] if lat == 0 and lon == 0 else [(lat, lon)]
+        return None
+
+    def _mission_request_list(self, msg) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        points = self._mission_points(msg.mission_type)
+        if points is None:
+            self._mission_ack(peer, msg.mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        self._queue(self.codec.mav.mission_count_encode(peer[0], peer[1], len(points), msg.mission_type))
+
+    def _mission_request(self, msg) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        points = self._mission_points(msg.mission_type)
+        if points is None:
+            self._mission_ack(peer, msg.mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        if not 0 <= msg.seq < len(points):
+            self._mission_ack(peer, msg.mission_type, mavlink.MAV_MISSION_INVALID_SEQUENCE)
+            return
+        lat, lon = points[msg.seq]
+        command = MISSION_ITEM_COMMAND[msg.mission_type]
+        param1 = float(len(points)) if msg.mission_type == mavlink.MAV_MISSION_TYPE_FENCE else 0.0
+        if msg.get_type() == "MISSION_REQUEST_INT":
+            message = self.codec.mav.mission_item_int_encode(
+                peer[0], peer[1], msg.seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1,
+                param1, 0.0, 0.0, 0.0, round(lat * 1e7), round(lon * 1e7), 0.0, msg.mission_type,
+            )  # fmt: skip
+        else:
+            message = self.codec.mav.mission_item_encode(
+                peer[0], peer[1], msg.seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, command, 0, 1,
+                param1, 0.0, 0.0, 0.0, lat, lon, 0.0, msg.mission_type,
+            )  # fmt: skip
+        self._queue(message)
+
+    def _mission_ack_in(self, msg) -> None:
+        up = self._upload
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        ours = up is not None and up.peer == peer and msg.mission_type == up.mission_type
+        if ours and msg.type != mavlink.MAV_MISSION_ACCEPTED:  # the ground station gave up
+            self._upload = None
+            self.counters.mission_errors += 1
+            self.notify(mavlink.MAV_SEVERITY_WARNING, f"mission upload cancelled by {peer[0]}/{peer[1]}")
+
+    def _mission_clear_all(self, msg) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mission_type = msg.mission_type
+        if mission_type not in (*MISSION_TYPES, mavlink.MAV_MISSION_TYPE_ALL):
+            self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        if mission_type in (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_ALL):
+            self.params.set_goals([])
+        if mission_type in (mavlink.MAV_MISSION_TYPE_FENCE, mavlink.MAV_MISSION_TYPE_ALL):
+            self.params.set_fence([])
+        if mission_type in (mavlink.MAV_MISSION_TYPE_RALLY, mavlink.MAV_MISSION_TYPE_ALL):
+            self.params.set_many({"BOB_RALLY_LAT": 0.0, "BOB_RALLY_LON": 0.0})
+        self._persist_warning()
+        self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_ACCEPTED)
+        self.notify(mavlink.MAV_SEVERITY_INFO, f"{_MISSION_TYPE_NAMES.get(mission_type, mission_type)} cleared")
+
+
+_HANDLERS: dict[str, Callable[[GcsComponent, object], None]] = {
+    "PARAM_REQUEST_LIST": GcsComponent._param_request_list,
+    "PARAM_REQUEST_READ": GcsComponent._param_request_read,
+    "PARAM_SET": GcsComponent._param_set,
+    "COMMAND_LONG": GcsComponent._command_long,
+    "COMMAND_INT": GcsComponent._command_int,
+    "MISSION_COUNT": GcsComponent._mission_count,
+    "MISSION_ITEM_INT": GcsComponent._mission_item,
+    "MISSION_ITEM": GcsComponent._mission_item,
+    "MISSION_REQUEST_LIST": GcsComponent._mission_request_list,
+    "MISSION_REQUEST_INT": GcsComponent._mission_request,
+    "MISSION_REQUEST": GcsComponent._mission_request,
+    "MISSION_ACK": GcsComponent._mission_ack_in,
+    "MISSION_CLEAR_ALL": GcsComponent._mission_clear_all,
+}
+
+_COMMANDS: dict[int, Handler] = {
+    mavlink.MAV_CMD_MISSION_START: GcsComponent._cmd_mission_start,
+    mavlink.MAV_CMD_DO_PAUSE_CONTINUE: GcsComponent._cmd_pause_continue,
+    mavlink.MAV_CMD_COMPONENT_ARM_DISARM: GcsComponent._cmd_forward,
+    mavlink.MAV_CMD_DO_SET_MODE: GcsComponent._cmd_forward,
+    mavlink.MAV_CMD_DO_REPOSITION: GcsComponent._cmd_goal,
+    mavlink.MAV_CMD_NAV_WAYPOINT: GcsComponent._cmd_goal,
+    mavlink.MAV_CMD_DO_FOLLOW: GcsComponent._cmd_follow,
+    mavlink.MAV_CMD_USER_1: GcsComponent._cmd_behavior,
+    mavlink.MAV_CMD_DO_FENCE_ENABLE: GcsComponent._cmd_fence_enable,
+    mavlink.MAV_CMD_REQUEST_MESSAGE: GcsComponent._cmd_request_message,
+    mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: GcsComponent._cmd_capabilities,
+}
+
+_MISSION_TYPE_NAMES = {
+    mavlink.MAV_MISSION_TYPE_MISSION: "mission",
+    mavlink.MAV_MISSION_TYPE_FENCE: "fence",
+    mavlink.MAV_MISSION_TYPE_RALLY: "rally",
+    mavlink.MAV_MISSION_TYPE_ALL: "all missions",
+}
+
+_LOG_LEVEL = {0: logging.CRITICAL, 1: logging.CRITICAL, 2: logging.CRITICAL, 3: logging.ERROR,
+              4: logging.WARNING, 5: logging.INFO, 6: logging.INFO, 7: logging.DEBUG}  # fmt: skip
+
+
+def _command_name(command: int) -> str:
+    entry = mavlink.enums["MAV_CMD"].get(command)
+    return entry.name if entry is not None else f"command {command}"
+
+
+def _clamp_int32(v: int) -> int:
+    return max(-(2**31), min(2**31 - 1, int(v)))
+
+
+def _cm_s(v_mps: float) -> int:
+    if not math.isfinite(v_mps):
+        return 0
+    return max(-32768, min(32767, round(v_mps * 100.0)))
+
+
+def point_in_polygon(point: Sequence[float], polygon: Sequence[Sequence[float]]) -> bool:
+    """Whether (lat, lon) (deg) lies inside the polygon of (lat, lon) vertices (even-odd rule, in a local
+    tangent plane at the first vertex)."""
+    frame = LocalFrame(float(polygon[0][0]), float(polygon[0][1]))
+    px, py = (float(v) for v in frame.to_local(point[0], point[1]))
+    xs, ys = frame.to_local([p[0] for p in polygon], [p[1] for p in polygon])
+    inside = False
+    n = len(polygon)
+    for i in range(n):
+        x1, y1, x2, y2 = float(xs[i]), float(ys[i]), float(xs[(i + 1) % n]), float(ys[(i + 1) % n])
+        if (y1 > py) != (y2 > py) and px < x1 + (py - y1) * (x2 - x1) / (y2 - y1):
+            inside = not inside
+    return inside
