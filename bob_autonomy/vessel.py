@@ -1,13 +1,16 @@
 """The on-vessel autonomy process: one agent driving one MAVLink vehicle, talking to its swarm over a mesh.
 
 Each control period (dt_s): drain the vehicle link (telemetry decoded by
-firmware_bridge, fused by the estimator), step the agent (listen to the mesh,
-run the behaviour on the estimate, broadcast the state at the mesh rate), turn
-the wish into an actuator command (MPC or proportional) and send it as
-RC_CHANNELS_OVERRIDE. A HEARTBEAT goes to the vehicle every second. If the
-vehicle goes silent the vessel commands neutral and raises an alarm (logged,
-counted); one bad message never stops the loop. On stop the thrusters or
-wheels are left at zero.
+firmware_bridge, fused by the estimator) and the ground-station link (the
+MAVLink component of `bob_autonomy.gcs`: parameters, commands, missions),
+step the agent (listen to the mesh, run the behaviour the parameters select on
+the estimate, broadcast the state at the mesh rate), pass the wish through the
+supervisor (start/stop, geofence, ground-station loss), turn it into an
+actuator command (MPC or proportional) and send it as RC_CHANNELS_OVERRIDE. A
+HEARTBEAT goes to the vehicle every second. If the vehicle goes silent the
+vessel commands neutral and raises an alarm (logged, counted, STATUSTEXT); one
+bad message never stops the loop. On stop the thrusters or wheels are left at
+zero. Every MAVLink frame in or out can be logged to a .tlog.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import statistics
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -26,14 +30,18 @@ from behaviors.base import Senses
 from bob_autonomy.agent import Agent
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.clock import ScaledWallClock
+from bob_autonomy.gcs import GcsComponent, load_signing_key
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import LinkMesh
+from bob_autonomy.params import ParameterStore
 from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.supervisor import Supervisor, behavior_params
 from bob_autonomy.vehicle_link import BUOY, EBOT, VehicleLink
 from bob_autonomy.velocity_control import BuoyModel
 from firmware_bridge.commands import heartbeat
 from firmware_bridge.links import Link, LinkError, open_link
+from firmware_bridge.tlog import TlogWriter
 
 logger = logging.getLogger(__name__)
 
@@ -74,6 +82,11 @@ class VesselConfig:
     arm_timeout_s: float = 10.0
     baud: int = 115200
     ebot: EbotConfig = field(default_factory=EbotConfig)
+    gcs: str | None = None
+    params_file: str | None = None
+    signing_key_file: str | None = None
+    autostart: bool = True
+    tlog: str | None = None
 
     @property
     def agent_id(self) -> int:
@@ -184,10 +197,26 @@ class Vessel:
             )
         else:
             raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy or ebot")
+        self.frame = LocalFrame(*c.origin)
+        fresh = c.params_file is None or not Path(c.params_file).exists()
+        self.params = ParameterStore(c.params_file)
+        if fresh:  # a new vessel starts from its configured behaviour; later the stored parameters rule
+            self.params.set_many(behavior_params(c.behavior, self.frame))
+            goal = c.behavior.params.get("goal")
+            if goal is not None:
+                self.params.set_goals([tuple(float(v) for v in self.frame.to_geodetic(goal[0], goal[1]))])
+        key = load_signing_key(c.signing_key_file) if c.signing_key_file else None
+        self.gcs = GcsComponent(c.system_id, self.params, signing_key=key, clock=self.clock.now)
+        self.gcs.behavior_running = c.autostart
+        self.supervisor = Supervisor(self.params, c.behavior, self.frame)
+        self.tlog = TlogWriter(c.tlog) if c.tlog else None
         self.vehicle_link: Link = open_link(c.vehicle, c.baud)
         self.vehicle = VehicleLink(
             c.system_id, c.kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
         )
+        if self.tlog is not None:
+            self.vehicle.decoder.message_hook = self.tlog.write_message
+        self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
         self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
         network = (
             ThrottledMesh(LinkMesh(self.mesh_link, c.agent_id, c.memory_fields, self.clock.now), c.broadcast_period_s)
@@ -196,7 +225,7 @@ class Vessel:
         )
         self.network = network
         self.body = MavlinkBody(self.pipeline, self.clock)
-        self.agent = Agent(c.agent_id, self.body, network, c.behavior.build(), self.clock, c.neighbor_expiry_s)
+        self.agent = Agent(c.agent_id, self.body, network, self.supervisor.behavior(), self.clock, c.neighbor_expiry_s)
         self.stats = VesselStats()
         self._stop = threading.Event()
         self._next_heartbeat_s = -math.inf
@@ -207,6 +236,8 @@ class Vessel:
     # -- link ------------------------------------------------------------------------------------------
 
     def _send(self, data: bytes) -> None:
+        if self.tlog is not None:
+            self.tlog.write_frame(data)  # every command is one frame
         try:
             self.vehicle_link.write(data)
         except LinkError as error:
@@ -232,6 +263,45 @@ class Vessel:
                 self._last_reading_wall_s = time.perf_counter()
                 self.stats.readings += len(readings)
                 self.pipeline.feed(readings)
+
+    def serve_gcs(self) -> None:
+        """Exchange what is due with the ground station(s): read their datagrams, answer, pass on autopilot
+        commands (arm, disarm, set mode) to the vehicle."""
+        gcs, link = self.gcs, self.gcs_link
+        while link is not None:
+            try:
+                data = link.read(65535, 0.0)
+            except LinkError as error:
+                self.stats.link_errors += 1
+                logger.warning("ground-station link read failed: %s", error)
+                break
+            if not data:
+                break
+            gcs.receive(data, datagram=True)
+        for command in gcs.take_autopilot_commands():
+            if command.kind in ("arm", "disarm"):
+                self._send(self.vehicle.arm(command.kind == "arm"))
+            elif command.kind == "set_mode" and command.custom_mode is not None:
+                self._send(self.vehicle.set_mode(int(command.custom_mode)))
+        gcs.tick()
+        for frame in gcs.outgoing():
+            if self.tlog is not None:
+                self.tlog.write_frame(frame)
+            if link is None:
+                continue
+            try:
+                link.write(frame)
+            except LinkError as error:
+                self.stats.link_errors += 1
+                logger.warning("ground-station link write failed: %s", error)
+
+    def _report_position(self, now: float) -> None:
+        e = self.pipeline.estimate(now)
+        if np.isfinite(e.position).all():
+            lat, lon = self.frame.to_geodetic(e.position[0, 0], e.position[0, 1])
+            vx, vy = e.velocity[0]
+            heading = float(e.heading[0]) if math.isfinite(e.heading[0]) else None
+            self.gcs.report_position(float(lat), float(lon), float(vx), float(vy), heading)
 
     def _heartbeat(self, now: float) -> None:
         if now >= self._next_heartbeat_s:
@@ -269,19 +339,20 @@ class Vessel:
         now = self.clock.now()
         self.stats.ticks += 1
         self._heartbeat(now)
+        self._report_position(now)
+        self.serve_gcs()
         if self.vehicle.silent():
             if not self._alarm:
                 self.stats.silent_alarms += 1
-                logger.error(
-                    "ALARM: vehicle %d silent for %.1f s: commanding neutral",
-                    self.config.system_id,
-                    self.vehicle.watch.silent_for_s(),
-                )
+                text = f"ALARM: vehicle {self.config.system_id} silent for {self.vehicle.watch.silent_for_s():.1f} s"
+                logger.error("%s: commanding neutral", text)
+                self.gcs.notify(mavlink.MAV_SEVERITY_ALERT, text)
             self._alarm = True
             self._send(self.vehicle.stop())
             return
         if self._alarm:
             logger.warning("vehicle %d heard again", self.config.system_id)
+            self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, f"vehicle {self.config.system_id} heard again")
             self._alarm = False
         start = time.perf_counter()
         if not self.has_fix:
@@ -290,8 +361,15 @@ class Vessel:
                 self._send(self.vehicle.stop())  # waiting for a position: hold still
                 return
         try:
+            behavior = self.supervisor.behavior()
+            if behavior is not self.agent.behavior:
+                self.agent.behavior = behavior
             self.agent.step()
-            wish = self.body.wish_velocity[None, :]
+            position = self.pipeline.estimate(now).position[0]
+            velocity = self.supervisor.velocity(
+                position, self.body.wish_velocity, self.gcs.behavior_running, self.gcs.gcs_lost
+            )
+            wish = velocity[None, :]
             if isinstance(self.pipeline, BuoyPipeline):
                 actuator = self.pipeline.thrust(wish, now)[0]
             else:
@@ -335,7 +413,9 @@ class Vessel:
         """Leave the actuators at zero and close the links."""
         for _ in range(3):
             self._send(self.vehicle.stop())
-        for link in (self.vehicle_link, self.mesh_link):
+        for link in (self.vehicle_link, self.mesh_link, self.gcs_link):
             if link is not None:
                 link.close()
+        if self.tlog is not None:
+            self.tlog.close()
         logger.info("vessel %d stopped: %s", self.config.system_id, self.stats.summary())

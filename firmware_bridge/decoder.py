@@ -144,6 +144,7 @@ class TelemetryDecoder:
         self._mav = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
         self._buf = bytearray()
         self._agents = np.array([agent], dtype=np.intp)
+        self.message_hook: Callable[[object], None] | None = None  # sees every decoded message (e.g. a tlog)
 
     # -- framing ---------------------------------------------------------------------------------------
 
@@ -224,6 +225,8 @@ class TelemetryDecoder:
             name = msg.get_type()
             c.by_type[name] = c.by_type.get(name, 0) + 1
             messages.append(msg)
+            if self.message_hook is not None:
+                self.message_hook(msg)
         del buf[:pos]
 
     def _check(self, frame: bytearray, magic: int, header_len: int, end: int, n: int):

@@ -49,6 +49,7 @@ def simulate(scenario: Scenario, progress: bool = False) -> RunResult:
     metrics = {"scenario": scenario.name, "seed": scenario.seed, "duration_s": scenario.duration_s, **metrics}
     if scenario.fidelity == "physics":
         metrics["estimation"] = estimation_errors(recorder)
+        metrics["vehicle_link"] = fleet.bodies.link_counters()
     medium = fleet.medium
     metrics["network"] = {"sent": medium.sent, "delivered": medium.delivered, "dropped": medium.dropped}
     return RunResult(fleet, recorder, metrics)
