@@ -3,9 +3,12 @@
     bob-autonomy behaviors                      # the behaviours and their parameters
     bob-autonomy run --vehicle udpout:127.0.0.1:5760 --system-id 1 --behavior bob-rule --param p0=5 \\
         --mesh udpout:127.0.0.1:15000 --origin 1.3405,103.9560
+    bob-autonomy run --config /etc/bob/vessel.toml      # as a service (docs/vessel.toml, docs/bob-autonomy.service)
 
 `run` drives one MAVLink vehicle until SIGTERM or Ctrl-C, then leaves its
-actuators at zero. Exit status: 0 after a clean stop, 2 for a bad command line
+actuators at zero. A config file holds the same settings as the options (names
+with underscores: `system_id = 3`, `param = ["p0=5"]`); options given on the
+command line win. Exit status: 0 after a clean stop, 2 for a bad command line
 or configuration, 3 when the vehicle cannot be driven.
 """
 
@@ -23,7 +26,6 @@ import tomllib
 from behaviors.registry import BEHAVIORS
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
-from firmware_bridge.links import LinkError
 
 
 def _describe_behaviors() -> str:
@@ -64,18 +66,19 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("behaviors", help="list the behaviours and their parameters")
     run = sub.add_parser("run", help="drive one MAVLink vehicle as an agent of the swarm")
-    run.add_argument("--vehicle", required=True, help="vehicle connection: udpout:H:P, udpin:H:P, tcp:H:P or a device")
+    run.add_argument("--config", help="TOML file with any of these settings (options given here win)")
+    run.add_argument("--vehicle", help="vehicle connection: udpout:H:P, udpin:H:P, tcp:H:P or a device (required)")
     run.add_argument("--baud", type=int, default=115200, help="serial baud rate")
-    run.add_argument("--system-id", type=int, required=True, help="the vehicle's MAVLink system id (agent = id - 1)")
+    run.add_argument("--system-id", type=int, help="the vehicle's MAVLink system id, agent = id - 1 (required)")
     run.add_argument("--kind", choices=["buoy", "ebot"], default="buoy")
     run.add_argument("--mesh", help="swarm mesh link, e.g. udpout:127.0.0.1:15000 (none: the agent acts alone)")
-    behavior = run.add_mutually_exclusive_group(required=True)
-    behavior.add_argument("--behavior", help="behaviour name (see `bob-autonomy behaviors`)")
+    behavior = run.add_mutually_exclusive_group()
+    behavior.add_argument("--behavior", help="behaviour name (see `bob-autonomy behaviors`; one of the two required)")
     behavior.add_argument("--behavior-json", help='{"behavior": NAME, "params": {...}, "avoid_obstacles": false}')
     run.add_argument("--param", type=_param, action="append", default=[], metavar="KEY=VALUE")
     run.add_argument("--avoid-obstacles", action="store_true", help="wrap the behaviour in obstacle avoidance")
     run.add_argument("--memory-fields", default="[]", help="JSON list: the swarm's broadcast memory fields, in order")
-    run.add_argument("--origin", type=_latlon, required=True, help="the swarm's shared origin LAT,LON (deg)")
+    run.add_argument("--origin", type=_latlon, help="the swarm's shared origin LAT,LON in deg (required)")
     run.add_argument("--time-scale", type=float, default=1.0, help="clock speed-up (simulation only)")
     run.add_argument("--dt", type=float, default=0.1, help="control period, s")
     run.add_argument("--broadcast-period", type=float, default=0.1, help="state broadcast period, s")
@@ -86,9 +89,15 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--start-y", type=float, default=0.0, help="known start position y (eBots), m")
     run.add_argument("--start-heading", type=float, default=0.0, help="known start heading (eBots), rad")
     run.add_argument("--max-thrust-fraction", type=float, default=1.0, help="usable share of the nominal thrust")
+    run.add_argument("--gcs", help="ground-station link, e.g. udpout:10.0.0.1:14550 or udpin:0.0.0.0:14560")
+    run.add_argument("--params-file", help="persistent parameters (JSON, written atomically); default: in memory")
+    run.add_argument("--signing-key", help="MAVLink 2 signing key file (see docs/gcs-protocol.md)")
+    run.add_argument("--wait-for-start", action="store_true", help="hold until the GCS sends MISSION_START")
+    run.add_argument("--tlog", help="append every MAVLink frame in and out to this .tlog")
     run.add_argument("--duration", type=float, help="stop after this many clock seconds")
     run.add_argument("--log-file", help="log here (rotated at 5 MB, 3 kept) instead of stderr")
     run.add_argument("--verbose", action="store_true")
+    parser.run_parser = run  # type: ignore[attr-defined] - for --config defaults
     return parser
 
 
@@ -102,8 +111,38 @@ def _setup_logging(path: str | None, verbose: bool) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, handlers=[handler], force=True)
 
 
+def _apply_config_file(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse `run` arguments with a --config file's settings as defaults (ValueError naming file and key)."""
+    args = parser.parse_args(argv)
+    if args.command != "run" or not args.config:
+        return args
+    try:
+        with open(args.config, "rb") as f:
+            settings = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise ValueError(f"cannot read config {args.config!r}: {error}") from None
+    run_parser = parser.run_parser  # type: ignore[attr-defined]
+    known = {a.dest for a in run_parser._actions}
+    unknown = sorted(set(settings) - known)
+    if unknown:
+        raise ValueError(f"config {args.config!r}: unknown setting(s) {unknown}")
+    if isinstance(settings.get("origin"), str):
+        settings["origin"] = _latlon(settings["origin"])
+    if "param" in settings:
+        settings["param"] = [_param(p) for p in settings["param"]]
+    run_parser.set_defaults(**settings)
+    return parser.parse_args(argv)
+
+
 def config_from_args(args: argparse.Namespace) -> VesselConfig:
     """A VesselConfig from the `run` arguments (ValueError saying what is wrong)."""
+    missing = [
+        f"--{name.replace('_', '-')}" for name in ("vehicle", "system_id", "origin") if getattr(args, name) is None
+    ]
+    if not (args.behavior or args.behavior_json):
+        missing.append("--behavior or --behavior-json")
+    if missing:
+        raise ValueError(f"missing required setting(s): {', '.join(missing)}")
     if args.behavior_json:
         try:
             data = json.loads(args.behavior_json)
@@ -135,6 +174,11 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         controller=args.controller,
         start_pose=(args.start_x, args.start_y, args.start_heading),
         max_thrust_fraction=args.max_thrust_fraction,
+        gcs=args.gcs,
+        params_file=args.params_file,
+        signing_key_file=args.signing_key,
+        autostart=not args.wait_for_start,
+        tlog=args.tlog,
     )
 
 
@@ -144,7 +188,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         config = config_from_args(args)
         vessel = Vessel(config)
-    except (ValueError, LinkError) as error:
+    except (ValueError, OSError) as error:  # bad settings, a link or key file that cannot be opened
         print(f"bob-autonomy: {error}", file=sys.stderr)
         log.error("%s", error)
         return 2
@@ -163,7 +207,11 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    try:
+        args = _apply_config_file(_parser(), argv)
+    except ValueError as error:
+        print(f"bob-autonomy: {error}", file=sys.stderr)
+        return 2
     if args.command == "behaviors":
         print(_describe_behaviors())
         return 0

@@ -1,0 +1,76 @@
+"""A stand-in vehicle for autonomy-process tests: the simulator's autopilot on a real UDP socket."""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+
+import numpy as np
+
+from bob_autonomy.clock import ScaledWallClock
+from bob_autonomy.geodesy import LocalFrame
+from sitl.mavlink_vehicle import SimulatedVehicle
+
+ORIGIN = (1.3405, 103.9560)
+SCALE = 5.0  # the vessel's and the stand-in vehicle's clocks run 5x wall time
+
+
+class StandInVehicle(threading.Thread):
+    """SimulatedVehicle on a UDP socket moving a point-mass buoy (1 m/s at full thrust), GPS 5 Hz, compass 10 Hz."""
+
+    def __init__(self, start_xy=(0.0, 0.0)) -> None:
+        super().__init__(daemon=True)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.01)
+        self.port = self.sock.getsockname()[1]
+        self.vehicle = SimulatedVehicle(1, "buoy", 45.0, failsafe_s=1.0)
+        self.frame = LocalFrame(*ORIGIN)
+        self.clock = ScaledWallClock(SCALE)
+        self.position = np.array(start_xy, dtype=float)
+        self.heading = 0.3
+        self.peer = None
+        self.running = threading.Event()
+        self.running.set()
+        self.muted = threading.Event()
+        self.applied: list[np.ndarray] = []
+
+    def run(self) -> None:
+        last = self.clock.now()
+        next_gps = next_att = last
+        while self.running.is_set():
+            try:
+                data, self.peer = self.sock.recvfrom(65535)
+                replies = self.vehicle.receive(data, self.clock.now())
+                if replies:
+                    self.sock.sendto(replies, self.peer)
+            except TimeoutError:
+                pass
+            now = self.clock.now()
+            thrust = self.vehicle.actuator(now)
+            self.applied.append(thrust)
+            c, s = math.cos(self.heading), math.sin(self.heading)
+            world = np.array([c * thrust[0] - s * thrust[1], s * thrust[0] + c * thrust[1]])
+            velocity = world / 45.0
+            self.position += velocity * (now - last)
+            last = now
+            if self.peer is None or self.muted.is_set():
+                continue
+            out = self.vehicle.housekeeping(now)
+            if now >= next_gps:
+                next_gps = now + 0.2
+                lat, lon = self.frame.to_geodetic(self.position[0], self.position[1])
+                out += self.vehicle.telemetry.gps_raw_int(now, float(lat), float(lon), velocity)
+            if now >= next_att:
+                next_att = now + 0.1
+                out += self.vehicle.telemetry.attitude(now, self.heading)
+            if out:
+                self.sock.sendto(out, self.peer)
+
+    def close(self) -> None:
+        self.running.clear()
+        self.join(2.0)
+        self.sock.close()
+
+
