@@ -58,7 +58,8 @@ def survey(controller: str, duration_s: float) -> dict:
         fleet.sync_table()
         wish = fleet.decide(fleet.senses())
         fleet.finish_step(wish)
-        thrust_ratio = max(thrust_ratio, float((np.hypot(*bodies.buoy_vessels.thrust_world_n.T) / bodies.max_thrust_n).max()))
+        thrust = np.hypot(*bodies.buoy_vessels.thrust_world_n.T)
+        thrust_ratio = max(thrust_ratio, float((thrust / bodies.max_thrust_n).max()))
         if fleet.t > 20.0:
             errors.append(np.hypot(*(bodies.velocity - wish.velocity).T))
     e = np.concatenate(errors)

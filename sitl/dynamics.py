@@ -166,6 +166,49 @@ class BuoyParams:
         return self.linear_drag_n_per_mps * v + (self.quadratic_drag_n_per_mps2 + self.air_drag_n_per_mps2) * v * v
 
 
+def equivalent_drift_mps(
+    params: BuoyParams,
+    wind_mps: FloatArray,
+    current_mps: FloatArray,
+    velocity_mps: FloatArray | None = None,
+) -> FloatArray:
+    """The equivalent drift (N, 2), m/s over ground, from the force balance of `BuoyDynamics` (thrust aside).
+
+    wind_mps, current_mps: (N, 2) or (2,) wind and current over ground, m/s. velocity_mps: (N, 2) or (2,) hull
+    velocity over ground v, m/s, or None.
+
+    The environment pushes a hull moving at v with E(v) = D_w(u - v) + D_a(w - v) (N), where u = current +
+    wind_drift_factor * wind is the surface water, w the wind, D_w(x) = (c1 + c2 |x|) x the water drag and
+    D_a(x) = 0.5 rho Cd A |x| x the windage. The equivalent drift at v is the surface-water velocity d that, by
+    water drag alone, would push the hull at v just as hard: D_w(d - v) = E(v), so M dv/dt = T - D_w(v - d) holds
+    exactly at v (the nominal model of `bob_autonomy`, with d for the water).
+
+    velocity_mps None: v is the velocity over ground an unpowered buoy settles to, E(v) = 0, which is also its
+    own equivalent drift (d = v). There the water drag and the windage are opposite, so v lies on the segment
+    from u to w: v = u + s (w - u) / L, L = |w - u|, with s the slip through the water solving
+    c1 s + c2 s^2 = ka (L - s)^2 (closed form, stable for any c2 - ka).
+    """
+    p = params
+    wind = np.atleast_2d(np.asarray(wind_mps, dtype=float))
+    current = np.atleast_2d(np.asarray(current_mps, dtype=float))
+    water = current + p.wind_drift_factor * wind
+    c1, c2, ka = p.linear_drag_n_per_mps, p.quadratic_drag_n_per_mps2, p.air_drag_n_per_mps2
+    if velocity_mps is None:
+        offset = wind - water
+        length = _norm(offset)
+        b = c1 + 2.0 * ka * length
+        slip = 2.0 * ka * length**2 / np.maximum(b + np.sqrt(b * b + 4.0 * (c2 - ka) * ka * length**2), 1e-300)
+        unit = offset / np.maximum(length, 1e-300)[:, None]
+        return water + slip[:, None] * unit
+    v = np.atleast_2d(np.asarray(velocity_mps, dtype=float))
+    to_water, to_wind = water - v, wind - v
+    force = (c1 + c2 * _norm(to_water))[:, None] * to_water + (ka * _norm(to_wind))[:, None] * to_wind
+    magnitude = _norm(force)
+    # |x| solving c1 |x| + c2 |x|^2 = |E| (the stable root), along E.
+    relative = 2.0 * magnitude / np.maximum(c1 + np.sqrt(c1 * c1 + 4.0 * c2 * magnitude), 1e-300)
+    return v + (relative / np.maximum(magnitude, 1e-300))[:, None] * force
+
+
 class BuoyDynamics:
     """N buoys with vectored thrust, water drag, windage and drift (see the module docstring).
 

@@ -15,7 +15,14 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.optimize import brentq
 
-from sitl.dynamics import BuoyDynamics, BuoyParams, DiffDriveDynamics, DiffDriveParams, wrap_angle
+from sitl.dynamics import (
+    BuoyDynamics,
+    BuoyParams,
+    DiffDriveDynamics,
+    DiffDriveParams,
+    equivalent_drift_mps,
+    wrap_angle,
+)
 from sitl.environment import CurrentSpec, Environment, WindSpec
 from sitl.world import World, point_segment_offsets, polygon_segments
 
@@ -205,6 +212,51 @@ def test_inactive_buoys_do_not_move() -> None:
     assert_allclose(b.acceleration_mps2[1], 0.0)
     assert_allclose(b.thrust_n[1], 0.0)
     assert np.hypot(*b.position_m[0] - [1.0, 2.0]) > 2.0
+
+
+def toward(speed: float, deg: float) -> np.ndarray:
+    return speed * np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
+
+
+@pytest.mark.parametrize(("wind_deg", "current_deg"), [(60.0, 180.0), (0.0, 0.0), (-90.0, 45.0)])
+def test_unpowered_buoy_settles_at_the_equivalent_drift(wind_deg: float, current_deg: float) -> None:
+    wind, current = toward(5.0, wind_deg), toward(0.1, current_deg)
+    b = buoys(heading=0.7)
+    run(b, np.zeros((1, 2)), 120.0, wind_mps=wind[None], current_mps=current[None])
+    drift = equivalent_drift_mps(STILL, wind, current)
+    assert drift.shape == (1, 2)
+    assert_allclose(b.velocity_mps, drift, rtol=0, atol=1e-6)
+    # By hand: water drag and windage are opposite there, so the buoy sits on the segment from the surface water
+    # u to the wind w, slipping s through the water with c1 s + c2 s^2 = ka (|w - u| - s)^2.
+    water = current + 0.03 * wind
+    span = np.hypot(*(wind - water))
+    slip = brentq(lambda s: C1 * s + C2 * s * s - KA * (span - s) ** 2, 0.0, span)
+    assert_allclose(drift[0], water + slip * (wind - water) / span, rtol=1e-12, atol=1e-12)
+    # It is its own equivalent drift (the force vanishes there).
+    assert_allclose(equivalent_drift_mps(STILL, wind, current, drift), drift, rtol=0, atol=1e-12)
+
+
+def test_equivalent_drift_makes_the_water_drag_law_exact_at_the_operating_velocity() -> None:
+    # Steady under constant thrust T, at velocity v: T = D_w(v - d) with d the equivalent drift at v, so the
+    # nominal model M dv/dt = T - D_w(v - d) balances exactly there.
+    wind, current = np.array([toward(5.0, 30.0), toward(8.0, -120.0)]), np.array([toward(0.2, 200.0), [0.0, 0.0]])
+    thrust = np.array([[8.0, -3.0], [-2.0, 5.0]])
+    b = buoys(n=2)  # heading 0: body frame = world frame
+    run(b, thrust, 120.0, wind_mps=wind, current_mps=current)
+    v = b.velocity_mps
+    relative = v - equivalent_drift_mps(STILL, wind, current, v)
+    speed = np.hypot(*relative.T)
+    assert_allclose((C1 + C2 * speed)[:, None] * relative, thrust, rtol=1e-6)
+    # At rest, the drift a buoy holding station feels is not the one it would drift at unpowered (a few cm/s
+    # apart in a 5 m/s wind): it depends on the operating velocity.
+    at_rest = equivalent_drift_mps(STILL, wind[0], current[0], np.zeros(2))
+    unpowered = equivalent_drift_mps(STILL, wind[0], current[0])
+    assert 0.02 < np.hypot(*(at_rest - unpowered)[0]) < 0.1
+    # At rest: D_w(d) = D_w(u) + ka |w| w, the push of water and wind on a still hull.
+    water = current[0] + 0.03 * wind[0]
+    push = (C1 + C2 * np.hypot(*water)) * water + KA * np.hypot(*wind[0]) * wind[0]
+    d = at_rest[0]
+    assert_allclose((C1 + C2 * np.hypot(*d)) * d, push, rtol=1e-12)
 
 
 def test_wrap_angle_is_half_open_at_minus_pi() -> None:

@@ -6,23 +6,32 @@ against the nominal water drag (5 w + 40 |w| w N, w the velocity through the
 water) in a constant 0.15 m/s current, its heading wandering sinusoidally.
 Sensors: GPS 5 Hz (2 m per axis, ground velocity 0.1 m/s), compass 10 Hz
 (2 deg), IMU 50 Hz (accelerometer in the body frame, 0.02 m/s^2; gyro 0.005
-rad/s). Every run is seeded. Frames: x east, y north; heading from east, CCW.
+rad/s). Variants: an accelerometer bias, a nozzle that turns towards each
+(held) command at a slew limit instead of the thrust following the command at
+once, a current that changes. Every run is seeded. Frames: x east, y north;
+heading from east, CCW. The batched filter equations are also checked against
+filterpy's ExtendedKalmanFilter directly.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from filterpy.kalman import ExtendedKalmanFilter
 
 from bob_autonomy.ekf import (
     BuoyEkf,
     BuoyEkfBank,
+    BuoyEkfParams,
     EbotEkf,
     EbotEkfBank,
     EbotEkfParams,
+    kalman_predict_rows,
+    kalman_update_rows,
     wrap_angle,
 )
 
@@ -46,12 +55,15 @@ def heading_at(t: float) -> tuple[float, float]:
     return 0.4 + 0.8 * math.sin(w * t), 0.8 * w * math.cos(w * t)
 
 
-def accel_world(vx: float, vy: float, t: float) -> tuple[float, float]:
+def accel_world(vx: float, vy: float, thrust: np.ndarray, current: np.ndarray) -> tuple[float, float]:
     """Truth: (T - (c1 + c2 |w|) w) / M, w = v - current."""
-    wx, wy = vx - CURRENT_MPS[0], vy - CURRENT_MPS[1]
+    wx, wy = vx - current[0], vy - current[1]
     drag = C1 + C2 * math.hypot(wx, wy)
-    angle = 2.0 * math.pi * t / 90.0
-    return (12.0 * math.cos(angle) - drag * wx) / MASS_KG, (12.0 * math.sin(angle) - drag * wy) / MASS_KG
+    return (thrust[0] - drag * wx) / MASS_KG, (thrust[1] - drag * wy) / MASS_KG
+
+
+def steady_current(t: float) -> np.ndarray:
+    return CURRENT_MPS
 
 
 def body(vector: np.ndarray, heading: float) -> np.ndarray:
@@ -90,28 +102,47 @@ def simulate(
     gps_offset=None,  # callable t -> (2,) extra GPS error, m
     ekf: BuoyEkf | None = None,
     check_covariance: bool = False,
+    accel_bias: tuple[float, float] = (0.0, 0.0),  # body frame, m/s^2
+    command=thrust_at,  # callable t -> (2,) world-frame thrust command, N
+    slew_radps: float | None = None,  # the nozzle's slew limit (None: the thrust is the command, at once)
+    current=steady_current,  # callable t -> (2,) current, m/s
+    on_step=None,  # callable (t, filter) run before each step's readings
 ) -> tuple[BuoyEkf, Run]:
     rng = np.random.default_rng(seed)
     f = BuoyEkf() if ekf is None else ekf
     px, py = 10.0, -5.0
-    vx, vy = CURRENT_MPS
+    vx, vy = current(0.0)
+    nozzle = 0.0  # body-frame angle of the nozzle, forward at power-up
+    thrust = command(0.0)
     rec: dict[str, list] = {k: [] for k in Run.__dataclass_fields__ if k != "outcomes"}
     outcomes = {}
     n = round(duration_s / DT_S)
     for k in range(n + 1):
         t = k * DT_S
+        if on_step is not None:
+            on_step(t, f)
         if k:  # truth: midpoint integration of M dv/dt = T - drag(v - current), in 2 sub-steps
             h = DT_S / 2
             for j in range(2):
                 tj = t - DT_S + j * h
-                ax, ay = accel_world(vx, vy, tj)
+                if slew_radps is None:
+                    thrust, thrust_mid = command(tj), command(tj + 0.5 * h)
+                else:  # the command of the interval ending at t; the nozzle turns towards it relative to the hull
+                    cmd = command(t)
+                    hull = heading_at(tj)[0]
+                    turn = float(wrap_angle(math.atan2(cmd[1], cmd[0]) - hull - nozzle))
+                    nozzle += float(np.clip(turn, -slew_radps * h, slew_radps * h))
+                    angle = hull + nozzle
+                    thrust = thrust_mid = math.hypot(*cmd) * np.array([math.cos(angle), math.sin(angle)])
+                ax, ay = accel_world(vx, vy, thrust, current(tj))
                 mx, my = vx + 0.5 * h * ax, vy + 0.5 * h * ay
-                ax, ay = accel_world(mx, my, tj + 0.5 * h)
+                ax, ay = accel_world(mx, my, thrust_mid, current(tj + 0.5 * h))
                 px, py, vx, vy = px + h * mx, py + h * my, vx + h * ax, vy + h * ay
         p, v = np.array([px, py]), np.array([vx, vy])
         psi, rate = heading_at(t)
-        a_body = body(np.array(accel_world(vx, vy, t)), psi) + ACCEL_SIGMA_MPS2 * rng.standard_normal(2)
-        f.predict(t, a_body if accel else None, thrust_at(t) if thrust_known else None)
+        truth_accel = np.array(accel_world(vx, vy, command(t) if slew_radps is None else thrust, current(t)))
+        a_body = body(truth_accel, psi) + ACCEL_SIGMA_MPS2 * rng.standard_normal(2) + np.asarray(accel_bias)
+        f.predict(t, a_body if accel else None, command(t) if thrust_known else None)
         if k % 5 == 0:
             f.update_compass(t, float(wrap_angle(psi + COMPASS_SIGMA_RAD * rng.standard_normal())))
             f.update_gyro(t, rate + GYRO_SIGMA_RADPS * rng.standard_normal())
@@ -183,6 +214,56 @@ def test_covariance_symmetric_positive_definite_after_every_step(nominal) -> Non
     assert run.min_eig.min() > 0.0
     assert np.isfinite(run.est_position).all() and np.isfinite(run.est_heading).all()
     assert f.gated <= 3 and f.failures == 0 and f.rejected == 0  # a clean run: at most chance gating
+
+
+def test_accelerometer_bias_is_estimated_and_kept_out_of_the_drift() -> None:
+    bias = (0.03, -0.02)  # body frame, m/s^2 (1.5 times the simulator's bias std)
+    f, run = simulate(90.0, seed=15, accel_bias=bias)
+    after = run.t >= 60.0
+    assert np.hypot(*(run.est_drift[after] - CURRENT_MPS).T).max() < 0.05
+    np.testing.assert_allclose(f.bank.accel_bias()[0], bias, atol=0.005)
+    # The same run with the bias states pinned at zero: the drift takes the bias in.
+    blind = BuoyEkf(params=BuoyEkfParams(initial_accel_bias_sigma_mps2=1e-6, accel_bias_psd=0.0))
+    _, run_blind = simulate(90.0, seed=15, accel_bias=bias, ekf=blind)
+    assert np.hypot(*(run_blind.est_drift[after] - CURRENT_MPS).T).max() > 0.05
+
+
+def reversing_command(t: float) -> np.ndarray:
+    """World-frame thrust command, N: 10.8 N reversed every 15 s (the nozzle needs ~1 s to follow)."""
+    return (1.0 if int(t // 15.0) % 2 == 0 else -1.0) * np.array([10.0, 4.0])
+
+
+def test_nozzle_lag_is_modelled_so_thrust_reversals_leave_the_drift_alone() -> None:
+    f, run = simulate(90.0, seed=21, command=reversing_command, slew_radps=3.0)
+    after = run.t >= 60.0
+    assert np.hypot(*(run.est_drift[after] - CURRENT_MPS).T).max() < 0.05
+    assert f.model_gated == 0
+    # A filter that took each command for the thrust at once would blame the lag on the water.
+    naive = BuoyEkf(params=BuoyEkfParams(thrust_slew_radps=1e3))
+    _, run_naive = simulate(90.0, seed=21, command=reversing_command, slew_radps=3.0, ekf=naive)
+    assert np.hypot(*(run_naive.est_drift[after] - CURRENT_MPS).T).max() > 0.2
+
+
+def test_drift_locked_out_by_the_gate_is_reopened_after_ten_gated_balances() -> None:
+    def corrupt(t: float, f: BuoyEkf) -> None:
+        if abs(t - 30.0) < 1e-9:  # a confident, wrong drift: every drag balance now fails the gate
+            f.bank.x[0, 6:8] += [1.0, -0.5]
+
+    f, run = simulate(100.0, seed=32, on_step=corrupt)
+    assert f.model_gated >= 9 and int(f.bank.outcome_counts("model_reset")[0]) >= 1
+    after = run.t >= 90.0
+    assert np.hypot(*(run.est_drift[after] - CURRENT_MPS).T).max() < 0.05
+
+
+def test_drift_follows_a_change_of_current() -> None:
+    new = 0.4 * np.array([math.cos(-1.0), math.sin(-1.0)])  # 0.48 m/s away from the old one
+
+    def current(t: float) -> np.ndarray:
+        return CURRENT_MPS if t < 60.0 else new
+
+    _, run = simulate(120.0, seed=31, current=current)
+    after = run.t >= 110.0
+    assert np.hypot(*(run.est_drift[after] - new).T).max() < 0.05
 
 
 def test_drift_observable_from_thrust_alone_without_accelerometer() -> None:
@@ -276,12 +357,9 @@ def test_heading_wraps_across_pi() -> None:
 
 def test_out_of_order_gps_is_fused_by_replay_exactly_as_in_order() -> None:
     warm, _ = simulate(10.0, seed=10)
-    snapshot = warm._snapshot()
 
     def fresh() -> BuoyEkf:
-        f = BuoyEkf()
-        f._restore(snapshot)
-        return f
+        return copy.deepcopy(warm)
 
     in_order, late = fresh(), fresh()
     events = [(10.0 + 0.02 * k, [0.05, -0.02], thrust_at(10.0 + 0.02 * k)) for k in range(1, 11)]
@@ -319,6 +397,45 @@ def test_estimate_is_finite_before_the_first_fix() -> None:
     assert f.update_compass(None, 1.0) == "init"
     assert f.initialized
     np.testing.assert_allclose(f.estimate()[0], [500.0, 20.0])
+
+
+@pytest.mark.parametrize("dim_z", [1, 2, 4])
+def test_batched_filter_equations_are_filterpys(dim_z: int) -> None:
+    rng = np.random.default_rng(40 + dim_z)
+    m, n = 5, 10
+    a = rng.standard_normal((m, n, n))
+    p_cov = a @ a.transpose(0, 2, 1) + n * np.eye(n)
+    f_jac = np.eye(n) + 0.1 * rng.standard_normal((m, n, n))
+    q_cov = np.array([np.diag(rng.uniform(0.01, 0.1, n)) for _ in range(m)])
+    x = rng.standard_normal((m, n))
+    h_jac = rng.standard_normal((m, dim_z, n))
+    r_cov = np.diag(rng.uniform(0.5, 2.0, dim_z))
+    z = rng.standard_normal((m, dim_z))
+    p_pred = kalman_predict_rows(p_cov, f_jac, q_cov)
+    hx = (h_jac @ x[:, :, None])[:, :, 0]
+    x_new, p_new, d2, ok = kalman_update_rows(x, p_pred, z - hx, h_jac, r_cov)
+    assert ok.all()
+    for i in range(m):
+        kf = ExtendedKalmanFilter(dim_x=n, dim_z=dim_z)
+        kf.x, kf.P, kf.F, kf.Q = np.zeros((n, 1)), p_cov[i], f_jac[i], q_cov[i]
+        kf.predict()
+        np.testing.assert_allclose(p_pred[i], 0.5 * (kf.P + kf.P.T), rtol=1e-12, atol=1e-10)
+        kf.x, kf.P = x[i][:, None], p_pred[i]
+        kf.update(z[i][:, None], lambda _x, i=i: h_jac[i], lambda _x, i=i: hx[i][:, None], R=r_cov)
+        np.testing.assert_allclose(x_new[i], kf.x[:, 0], rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(p_new[i], 0.5 * (kf.P + kf.P.T), rtol=1e-10, atol=1e-10)
+        assert d2[i] == pytest.approx(float((kf.y.T @ kf.SI @ kf.y).item()), rel=1e-10)
+
+
+def test_bank_takes_an_agent_twice_in_one_call_in_order() -> None:
+    bank, twice = BuoyEkfBank(2), BuoyEkfBank(2)
+    for b in (bank, twice):
+        b.update_gps(np.arange(2), 0.0, np.zeros((2, 2)))
+    bank.update_gps(np.array([1, 0, 1]), np.array([0.2, 0.2, 0.4]), [[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    twice.update_gps(np.array([1, 0]), np.array([0.2, 0.2]), [[1.0, 0.0], [2.0, 0.0]])
+    twice.update_gps(np.array([1]), np.array([0.4]), [[3.0, 0.0]])
+    np.testing.assert_array_equal(bank.x, twice.x)
+    np.testing.assert_array_equal(bank.P, twice.P)
 
 
 # ---------------------------------------------------------------- eBot
