@@ -16,6 +16,21 @@ range, so an agent could never pass between fixed agents spaced 2 p0 apart;
 with our reading an agent with p0 = 50 m goes through a fixed lattice spaced
 100 m and one with p0 = 100 m goes around it, as in the paper's figure.)
 
+Going around (`skirt`, not in the paper; off by default): with H = 1 and
+repulsion only, eq. (5) is a potential field with local minima. An agent whose
+way a fixed lattice blocks settles where the repulsion of its neighbours
+cancels the goal pull, in the first pocket of the lattice's edge it meets, and
+never reaches its goal. With `skirt`, the part of the goal pull that points
+into the repulsion, b = max(0, -beta . n) with n the unit repulsion, is also
+applied to the left of the direction to the neighbours (-n turned +90 deg),
+as the obstacle-avoidance wrapper turns the blocked part of a wish along a
+wall: the agent keeps the neighbours on its right and follows the edge of the
+group (a bug algorithm's boundary following) until the goal is no longer
+behind them. Always the same side, so it does not dither; the term starts as
+soon as any neighbour is within p0 (where the repulsion starts), so the agent
+follows the outer envelope of the group, which has shallower pockets than the
+contour where the repulsion balances the pull.
+
 An agent that hears nobody has zero pair and consensus terms. Uses:
 aggregation is BobRule(H=0); goal seeking BobRule(H=1, goal=(x, y));
 leader-follower BobRule(H=1, leader_id=k): the goal is the position of agent
@@ -54,6 +69,10 @@ class BobRule(Behavior):
     goal_radius_m: if positive, the goal term fades linearly to zero inside
         this distance of the goal (0, as printed: a unit pull at any distance,
         which piles a large group of followers onto its leader).
+    skirt: if true (H = 1 only), an agent whose goal pull the repulsion of its
+        neighbours opposes also moves to the left of them by the opposed part of
+        the pull (unit speed scale): it goes around a blocking group instead of
+        stopping in a pocket of its edge (see the module docstring).
     gabriel: if true, N_i is only the Gabriel neighbours among those heard
         (j such that no other heard agent lies inside the circle on the
         segment i-j as diameter): a local, Voronoi-like neighbourhood that keeps
@@ -73,6 +92,7 @@ class BobRule(Behavior):
     gabriel: bool = False
     goal_radius_m: float = 0.0
     align_course: bool = False
+    skirt: bool = False
 
     def __post_init__(self) -> None:
         if self.H not in (0, 1):
@@ -81,6 +101,8 @@ class BobRule(Behavior):
             raise ValueError("give either a fixed goal or a leader_id, not both")
         if self.nearest is not None and self.nearest < 1:
             raise ValueError(f"nearest must be at least 1, not {self.nearest!r}")
+        if self.skirt and not self.H:
+            raise ValueError("skirt needs H = 1 (a goal to go around the group to)")
 
     def step(self, view: View) -> Wish:
         goal = self.goals(view)
@@ -106,6 +128,8 @@ class BobRule(Behavior):
             pull = unit(to_goal)
             if self.goal_radius_m > 0.0:
                 pull *= np.minimum(1.0, np.hypot(to_goal[:, 0], to_goal[:, 1]) / self.goal_radius_m)[:, None]
+            if self.skirt:
+                v = v + skirt_term(v, pull)
             v = v + self.H * pull + self.H * per_neighbour[:, None] * thetas
         velocity = limit_speed(self.speed_scale * v, self.max_speed)
         return Wish(velocity, np.full(view.n, np.nan), {"goal": goal})
@@ -130,6 +154,22 @@ class BobRule(Behavior):
         is_self = view.table.ids[view.rows] == self.leader_id
         goal[is_self] = view.position[is_self]
         return goal
+
+
+def skirt_term(repulsion: FloatArray, pull: FloatArray) -> FloatArray:
+    """(n, 2) the sideways term of `skirt`, in units of eq. (5) (times speed_scale: m/s).
+
+    repulsion: (n, 2) the pair term of eq. (5) (H = 1: repulsion only).
+    pull: (n, 2) the goal term (the unit bearing to the goal, less near it with
+    goal_radius_m; zero rows: no goal). With n the unit repulsion, the opposed
+    part of the pull b = max(0, -pull . n) pushes along -n turned +90 deg, to
+    the left of the direction to the neighbours. Zero where there is no
+    repulsion or it does not oppose the pull.
+    """
+    away = unit(repulsion)
+    blocked = np.maximum(0.0, -np.einsum("ij,ij->i", pull, away))
+    left_of_neighbours = np.column_stack((away[:, 1], -away[:, 0]))
+    return blocked[:, None] * left_of_neighbours
 
 
 def nearest_pairs(view: View, k: int) -> np.ndarray:

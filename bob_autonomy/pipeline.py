@@ -42,6 +42,7 @@ class BuoyPipeline:
     """Estimator (alpha-beta or EKF) and velocity controller (proportional or MPC) of n buoys.
 
     max_thrust_n (n,): each vessel's thrust limit, N. dt_s: the control period, s (the MPC's step).
+    mpc_time_budget_s: wall time after which a solve is discarded for the fallback (inf in simulated time).
     """
 
     def __init__(
@@ -53,6 +54,7 @@ class BuoyPipeline:
         estimator: str = "simple",
         controller: str = "mpc",
         dt_s: float = 0.1,
+        mpc_time_budget_s: float = 0.02,
     ) -> None:
         _check_choice("estimator", estimator, ESTIMATORS)
         _check_choice("controller", controller, CONTROLLERS)
@@ -61,7 +63,7 @@ class BuoyPipeline:
         self.use_ekf, self.use_mpc = estimator == "ekf", controller == "mpc"
         self.estimator = BuoyEkfBank(n) if self.use_ekf else AlphaBetaBuoyEstimator(n)
         self.simple = BuoyVelocityController()
-        self.mpcs = [BuoyMpc(dt_s=dt_s) for _ in range(n)] if self.use_mpc else []
+        self.mpcs = [BuoyMpc(dt_s=dt_s, time_budget_s=mpc_time_budget_s) for _ in range(n)] if self.use_mpc else []
         self.thrust_world_n = np.zeros((n, 2))  # last command, world frame (the EKF's known input)
         self.ignored = 0  # readings of kinds a buoy does not use (wheel travel, ...)
 
@@ -132,6 +134,7 @@ class EbotPipeline:
         estimator: str = "simple",
         controller: str = "mpc",
         dt_s: float = 0.1,
+        mpc_time_budget_s: float = 0.02,
     ) -> None:
         _check_choice("estimator", estimator, ESTIMATORS)
         _check_choice("controller", controller, CONTROLLERS)
@@ -143,7 +146,12 @@ class EbotPipeline:
         self.estimator = estimator_class(position, heading_rad, wheel_base_m, metres_per_tick)
         self.simple = DiffDriveController(wheel_base_m, max_wheel_speed_mps)
         self.mpcs = (
-            [DiffDriveMpc(wheel_base_m, max_wheel_speed_mps, dt_s=dt_s) for _ in range(self.n)] if self.use_mpc else []
+            [
+                DiffDriveMpc(wheel_base_m, max_wheel_speed_mps, dt_s=dt_s, time_budget_s=mpc_time_budget_s)
+                for _ in range(self.n)
+            ]
+            if self.use_mpc
+            else []
         )
         self.ignored = 0
 

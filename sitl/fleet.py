@@ -71,10 +71,8 @@ def lattice_sites(n: int, center, spacing_m: float, kind: str = "triangular", an
     reach = int(np.ceil(np.sqrt(n))) + 2  # rows and columns each side: more sites than needed
     i, j = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing="ij")
     i, j = i.ravel().astype(float), j.ravel().astype(float)
-    if kind == "triangular":
-        local = np.column_stack((i + 0.5 * j, j * np.sqrt(3.0) / 2.0))
-    else:
-        local = np.column_stack((i, j))
+    shear, row_height = (0.5, np.sqrt(3.0) / 2.0) if kind == "triangular" else (0.0, 1.0)
+    local = np.column_stack((i + shear * j, row_height * j))
     radius = np.round(np.hypot(local[:, 0], local[:, 1]), 9)
     bearing = np.round(np.mod(np.arctan2(local[:, 1], local[:, 0]), 2.0 * np.pi), 9)
     chosen = local[np.lexsort((bearing, radius))[:n]] * spacing_m

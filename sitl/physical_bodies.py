@@ -3,12 +3,15 @@
 The behaviour sees only what the vessel believes: the pose its estimator makes
 of the simulated sensors' readings. Its wish goes through the vessel's velocity
 controller (autonomy code, `bob_autonomy`) into thrust or wheel commands, which
-the simulated dynamics apply. Truth stays here, for the metrics and the
-recording. Same interface as the kinematic bodies, so the lockstep fleet runs
-either.
+the simulated dynamics apply. The physics (dynamics, environment, sensors and
+truth) is `sitl.vehicle_physics.VehiclePhysics`, shared with the process fleet;
+truth stays there, for the metrics and the recording. Same interface as the
+kinematic bodies, so the lockstep fleet runs either.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,28 +20,38 @@ from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
 from bob_autonomy.simple_estimator import PoseEstimate
 from sitl.bodies import KinematicBodies
-from sitl.dynamics import BuoyDynamics, BuoyParams, DiffDriveDynamics, DiffDriveParams
 from sitl.environment import Environment
 from sitl.mavlink_vehicle import BUOY, EBOT
-from sitl.sensors import (
-    CompassSpec,
-    EncoderSpec,
-    GpsSpec,
-    ImuSpec,
-    LightSpec,
-    RangeSpec,
-    SensorSuite,
-    noisy_light,
-    noisy_ranges,
-)
+from sitl.sensors import noisy_light, noisy_ranges
+from sitl.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicle_transport import DirectTransport, MavlinkTransport
 from sitl.world import FloatArray, World
 
-PRE_ROLL_S = 2.0  # sensors and estimators run this long before t = 0, as a vessel powered up before the mission
+
+def _truth(name: str) -> property:
+    """An attribute of the physics (ground truth), readable and assignable through the bodies."""
+
+    def get(self: PhysicalBodies):
+        return getattr(self.physics, name)
+
+    def set_(self: PhysicalBodies, value) -> None:
+        setattr(self.physics, name, value)
+
+    return property(get, set_, doc=f"`physics.{name}` (ground truth)")
 
 
 class PhysicalBodies(KinematicBodies):
     """Truth from the dynamics; `believed()` from each vessel's estimator; commands from its controller."""
+
+    position = _truth("position")
+    velocity = _truth("velocity")
+    heading = _truth("heading")
+    active = _truth("active")
+    wind = _truth("wind")
+    current = _truth("current")
+    wall_contacts = _truth("wall_contacts")
+    robot_contacts = _truth("robot_contacts")
+    t = _truth("t")
 
     def __init__(
         self,
@@ -55,46 +68,26 @@ class PhysicalBodies(KinematicBodies):
         dt_s: float = 0.1,
         link: str = "direct",
     ) -> None:
-        super().__init__(kinds, position, heading)
-        self.environment = environment
-        self.rng = rng
+        self.physics = VehiclePhysics(
+            kinds, position, heading, environment, frame, rng, thrust_fraction, sensor_specs, t0_s=-PRE_ROLL_S
+        )
+        super().__init__(kinds, position, heading)  # truth attributes go to the physics (same values)
+        p = self.physics
+        self.environment, self.rng, self.frame, self.dt_s = environment, rng, frame, dt_s
+        self.buoy_params, self.ebot_params, self.buoy, self.ebot = p.buoy_params, p.ebot_params, p.buoy, p.ebot
+        self.max_thrust_n = p.max_thrust_n
+        self.range_spec, self.light_spec = p.range_spec, p.light_spec
+        self.buoy_sensors, self.ebot_sensors = p.buoy_sensors, p.ebot_sensors
         b, e = self.buoys, self.ebots
-        self.buoy_params, self.ebot_params = BuoyParams(), DiffDriveParams()
-        self.buoy = BuoyDynamics(self.buoy_params, self.position[b], self.heading[b], rng) if b.size else None
-        self.ebot = DiffDriveDynamics(self.ebot_params, self.position[e], self.heading[e], rng) if e.size else None
-        self.max_thrust_n = self.buoy_params.max_thrust_n * np.asarray(thrust_fraction, dtype=float)[b]
-        self.range_spec: RangeSpec = sensor_specs.get("ranges", RangeSpec())
-        self.light_spec: LightSpec = sensor_specs.get("light", LightSpec())
-        encoders: EncoderSpec = sensor_specs.get("encoders", EncoderSpec())
-        self.buoy_sensors = SensorSuite(
-            b.size,
-            frame,
-            rng,
-            sensor_specs.get("gps", GpsSpec()),
-            sensor_specs.get("compass", CompassSpec()),
-            sensor_specs.get("imu", ImuSpec()),
-            None,
-        )
-        self.ebot_sensors = SensorSuite(
-            e.size,
-            frame,
-            rng,
-            None,
-            sensor_specs.get("compass", CompassSpec()),
-            sensor_specs.get("imu", ImuSpec()),
-            encoders,
-        )
-        self.frame = frame
-        self.dt_s = dt_s
-        wheel_base, per_tick = self.ebot_params.wheel_base_m, encoders.metres_per_tick
-        options = {"estimator": estimator, "controller": controller, "dt_s": dt_s}
+        wheel_base, per_tick = self.ebot_params.wheel_base_m, p.metres_per_tick
+        # Simulated time: an MPC solve is never too slow for it, so a loaded machine cannot change a run.
+        options = {"estimator": estimator, "controller": controller, "dt_s": dt_s, "mpc_time_budget_s": math.inf}
         self.buoy_vessels = BuoyPipeline(b.size, frame, self.max_thrust_n, **options)
         # eBots start from a known pose (the paper's robots are told theirs) and dead-reckon from there.
         self.ebot_vessels = EbotPipeline(
             self.position[e], self.heading[e], wheel_base, self.ebot_params.max_wheel_speed_mps, per_tick, **options
         )
         self.link = link
-        self.t = -PRE_ROLL_S
         if link == "mavlink":
 
             def clock() -> float:  # the vessels stamp readings with the simulated time
@@ -113,8 +106,6 @@ class PhysicalBodies(KinematicBodies):
             self.buoy_link = self.ebot_link = DirectTransport()
         else:
             raise ValueError(f"unknown vehicle link {link!r}; choose direct or mavlink")
-        self.wind = np.zeros_like(self.position)
-        self.current = np.zeros_like(self.position)
         while self.t < -1e-9:
             self.apply(np.zeros((len(self), 2)), np.full(len(self), np.nan), 0.1, World())
 
@@ -148,53 +139,23 @@ class PhysicalBodies(KinematicBodies):
         """One control step: the vessels' controllers, the link, dynamics, environment, sensors, estimators."""
         b, e = self.buoys, self.ebots
         idle = self.t < 0.0
-        self.wind = self.environment.wind_at(self.position)
-        self.current = self.environment.current_at(self.position)
-        if self.buoy is not None:
+        thrust = np.zeros((b.size, 2))
+        wheels = np.zeros((e.size, 2))
+        if b.size:
             thrust = self.buoy_link.down(self.buoy_vessels.thrust(wish_velocity[b], self.t, idle=idle), self.t)
-            self.buoy.active = self.active[b]
-            self.buoy.step(thrust, dt, self.wind[b], self.current[b], self.max_thrust_n)
-            self.position[b], self.velocity[b], self.heading[b] = (
-                self.buoy.position_m,
-                self.buoy.velocity_mps,
-                self.buoy.heading_rad,
-            )
-        if self.ebot is not None:
+        if e.size:
             wheels = self.ebot_vessels.wheels(wish_velocity[e], wish_heading[e], self.t, idle=idle)
             wheels = self.ebot_link.down(wheels, self.t)
-            self.ebot.active = self.active[e]
-            self.ebot.step(wheels, dt, world)
-            self.position[e], self.velocity[e], self.heading[e] = (
-                self.ebot.position_m,
-                self.ebot.velocity_mps,
-                self.ebot.heading_rad,
-            )
-            self.wall_contacts = self.ebot.wall_contacts
-            self.robot_contacts = self.ebot.robot_contacts
-        self.environment.step(dt)
-        self.t += dt
+        self.physics.step(thrust, wheels, dt, world)
         self._sense()
 
     def _sense(self) -> None:
         """Sample the sensors at the new time; the readings go up the link to the vessels' estimators."""
-        if self.buoy is not None:
-            d = self.buoy
-            readings = self.buoy_sensors.sample(
-                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps
-            )
-            self.buoy_vessels.feed(self.buoy_link.up(readings, self.t))
-        if self.ebot is not None:
-            d = self.ebot
-            readings = self.ebot_sensors.sample(
-                self.t,
-                d.position_m,
-                d.velocity_mps,
-                d.acceleration_mps2,
-                d.heading_rad,
-                d.yaw_rate_radps,
-                d.wheel_travel_m,
-            )
-            self.ebot_vessels.feed(self.ebot_link.up(readings, self.t))
+        readings = self.physics.sense()
+        if "buoy" in readings:
+            self.buoy_vessels.feed(self.buoy_link.up(readings["buoy"], self.t))
+        if "ebot" in readings:
+            self.ebot_vessels.feed(self.ebot_link.up(readings["ebot"], self.t))
 
     def range_finders(self, rows: NDArray[np.int_], world: World) -> FloatArray:
         """The sonar echoes of the kinematic model, with range noise."""

@@ -220,3 +220,94 @@ def test_gabriel_neighbourhood_drops_a_neighbour_shadowed_by_a_closer_one() -> N
     assert gabriel_pairs(view).tolist() == [True, False, True]
     wish = BobRule(p0=1.0, H=0, speed_scale=1.0, max_speed=100.0, gabriel=True).step(view)
     np.testing.assert_allclose(wish.velocity, [[0.375, 8.0 / 18.0]])
+
+
+# --- skirt: go around a group that blocks the way (not in the paper; see behaviors/bob_rule.py) ---
+
+
+@pytest.mark.parametrize(
+    ("neighbour", "expected_skirt"),
+    [
+        # Dead ahead at 5 m: f = -3, repulsion (0, -3), n = (0, -1); the pull (0, 1) is fully opposed, b = 1,
+        # and pushes along -n = (0, 1) turned +90 deg: (-1, 0), to the left of the neighbour.
+        ([0.0, 5.0], [-1.0, 0.0]),
+        # At (3, 4), 5 m: repulsion -3 (0.6, 0.8), n = (-0.6, -0.8); b = 0.8; -n turned +90 deg = (-0.8, 0.6).
+        ([3.0, 4.0], [-0.64, 0.48]),
+        # Behind at (0, -5): the repulsion helps the pull (b < 0): no sideways term.
+        ([0.0, -5.0], [0.0, 0.0]),
+        # Beyond p0 (H = 1 repels only inside p0): no repulsion, no sideways term.
+        ([0.0, 15.0], [0.0, 0.0]),
+    ],
+)
+def test_skirt_turns_the_opposed_part_of_the_pull_to_the_left_of_the_neighbours(
+    neighbour: list[float], expected_skirt: list[float]
+) -> None:
+    # Goal (0, 40): beta = (0, 1). Headings 0 and pi: the consensus terms cancel when both count.
+    table = make_table([[0.0, 0.0], neighbour], headings=[0.0, math.pi])
+    view = make_view(table, rows=[0], pairs=[(0, 1)])
+    plain = rule(H=1, goal=(0.0, 40.0)).step(view).velocity
+    skirting = rule(H=1, goal=(0.0, 40.0), skirt=True).step(view).velocity
+    assert_allclose(skirting - plain, [expected_skirt], atol=1e-12)
+
+
+def test_skirt_changes_nothing_for_a_lone_agent() -> None:
+    view = make_view(make_table([[0.0, 0.0]], headings=[1.0]), pairs=[])
+    assert_allclose(rule(H=1, goal=(3.0, 4.0), skirt=True).step(view).velocity, [[0.6, 0.8]], atol=1e-12)
+
+
+def test_skirt_needs_h1() -> None:
+    with pytest.raises(ValueError, match="skirt"):
+        BobRule(H=0, skirt=True)
+
+
+def test_skirt_is_batch_equivalent() -> None:
+    table = make_table(SWARM, headings=[0.1, 2.0, -1.0, 3.0], ids=[11, 12, 13, 14])
+    wish = assert_batch_equivalent(BobRule(p0=6.0, H=1, goal=(-5.0, 12.0), skirt=True), make_view(table))
+    assert np.all(np.isfinite(wish.velocity))
+
+
+def run_past_wall(skirt: bool, steps: int = 1200, dt: float = 0.5) -> np.ndarray:
+    """(steps + 1, 2) path of one agent (p0 = 10 m, nearest 2) from (3, -30) m to a goal at (0, 30) m.
+
+    Between them a fixed wall of 11 agents 6 m apart on y = 0 (x from -30 to 30 m), with a
+    2 m deep notch at its middle: too tight to pass for p0 = 10 m, and head-on, so plain
+    eq. (5) has a local minimum in front of it. Courses are aligned (align_course, as in the
+    avoidance scenarios) and every table velocity is zero, so the consensus term is zero.
+    """
+    wall = np.column_stack((np.arange(-30.0, 31.0, 6.0), np.zeros(11)))
+    wall[5, 1] = 2.0
+    behavior = BobRule(
+        p0=10.0,
+        H=1,
+        goal=(0.0, 30.0),
+        speed_scale=1.0,
+        max_speed=1.0,
+        nearest=2,
+        align_course=True,
+        skirt=skirt,
+    )
+    position = np.array([3.0, -30.0])
+    path = [position.copy()]
+    for _ in range(steps):
+        table = make_table(np.vstack((position, wall)))
+        velocity = behavior.step(make_view(table, rows=[0], pairs=[(0, j) for j in range(1, 12)])).velocity[0]
+        position = position + dt * velocity
+        path.append(position.copy())
+    return np.array(path)
+
+
+def test_without_skirt_a_head_on_wall_is_a_local_minimum() -> None:
+    path = run_past_wall(skirt=False)
+    assert np.hypot(*(path[-1] - [0.0, 30.0])) > 30.0  # stuck in front of the wall
+    assert np.hypot(*(path[-1] - path[-100])) < 0.5  # and not moving
+
+
+def test_with_skirt_the_agent_goes_around_the_wall_to_its_goal() -> None:
+    path = run_past_wall(skirt=True)
+    assert np.hypot(*(path[-1] - [0.0, 30.0])) < 1.0
+    # Around, not through: it crosses the line of the wall only beyond its west end (x < -30 m),
+    # to the left of the wall as seen from the agent, and never comes closer than 3 m to a wall agent.
+    crossing = np.flatnonzero(np.diff(np.sign(path[:, 1])) != 0)
+    assert crossing.size and np.all(path[crossing, 0] < -30.0)
+    wall = np.column_stack((np.arange(-30.0, 31.0, 6.0), np.zeros(11)))
+    assert np.hypot(*(path[:, None, :] - wall[None]).transpose(2, 0, 1)).min() > 3.0

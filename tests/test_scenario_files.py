@@ -8,6 +8,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from sitl.scenario import (
@@ -223,6 +224,75 @@ def test_event_group_must_exist() -> None:
 def test_light_needs_position_or_box() -> None:
     both = changed(world={"lights": [{"position": [1.0, 1.0], "box": {"min": [0, 0], "max": [1, 1]}}]})
     assert "world.lights.0" in error_of(both)
+
+
+def test_start_needs_exactly_one_of_box_or_lattice() -> None:
+    lattice = {"center": [0.0, 0.0], "spacing_m": 10.0}
+    both = with_group(start={"box": {"min": [0.0, 0.0], "max": [1.0, 1.0]}, "lattice": lattice})
+    assert "groups.0.start" in error_of(both) and "exactly one of 'box' or 'lattice'" in error_of(both)
+    assert "exactly one of 'box' or 'lattice'" in error_of(with_group(start={"heading_deg": 0.0}))
+
+
+@pytest.mark.parametrize(
+    ("lattice", "key"),
+    [
+        ({"center": [0.0, 0.0], "spacing_m": 0.0}, "spacing_m"),
+        ({"center": [0.0, 0.0], "spacing_m": 10.0, "kind": "hexagonal"}, "kind"),
+        ({"center": [0.0, 0.0]}, "spacing_m"),
+        ({"center": [0.0, 0.0], "spacing_m": 10.0, "rows": 3}, "rows"),
+    ],
+)
+def test_bad_lattice_is_named(lattice: dict[str, Any], key: str) -> None:
+    assert f"groups.0.start.lattice.{key}" in error_of(with_group(start={"lattice": lattice}))
+
+
+def test_lattice_start_rejects_min_separation() -> None:
+    start = {"lattice": {"center": [0.0, 0.0], "spacing_m": 10.0}, "min_separation_m": 5.0}
+    assert "min_separation_m" in error_of(with_group(start=start))
+
+
+@pytest.mark.parametrize("kind", ["triangular", "square"])
+def test_lattice_start_places_the_sites_nearest_the_center(kind: str) -> None:
+    from scipy.spatial import cKDTree
+
+    from sitl.fleet import initial_poses, lattice_sites
+    from sitl.world import World
+
+    spacing, count = 80.0, 16
+    lattice = {"center": [5.0, -7.0], "spacing_m": spacing, "kind": kind, "angle_deg": 30.0}
+    scenario = validate_scenario(with_group(count=count, start={"lattice": lattice, "heading_deg": 0.0}), "lattice")
+    empty = World()  # open water: no rooms, every site allowed
+    position, heading = initial_poses(scenario, empty, np.random.default_rng(0))
+    assert position.shape == (count, 2) and np.array_equal(heading, np.zeros(count))
+    # No random draw: the same sites with any seed, one of them at the centre.
+    assert np.array_equal(position, initial_poses(scenario, empty, np.random.default_rng(1))[0])
+    assert np.array_equal(position, lattice_sites(count, (5.0, -7.0), spacing, kind, 30.0))
+    assert np.hypot(*(position - [5.0, -7.0]).T).min() < 1e-9
+    # Every site's nearest neighbour is exactly one spacing away, and the sites are distinct.
+    distance, _ = cKDTree(position).query(position, k=2)
+    np.testing.assert_allclose(distance[:, 1], spacing)
+    # A triangular site has 6 neighbours at one spacing, a square one 4 (the centre site is inner).
+    neighbours = (np.hypot(*(position - position[0]).T) < 1.01 * spacing).sum() - 1
+    assert neighbours == (6 if kind == "triangular" else 4)
+    # The nearest sites to the centre: a compact patch (for 16 sites, none beyond sqrt(5) spacings).
+    assert np.hypot(*(position - [5.0, -7.0]).T).max() < 2.25 * spacing
+
+
+def test_lattice_sites_outside_the_rooms_are_a_scenario_error() -> None:
+    from sitl.fleet import initial_poses
+    from sitl.world import World
+
+    start = {"lattice": {"center": [5.0, 5.0], "spacing_m": 8.0}}
+    scenario = validate_scenario(with_group(count=7, start=start), "lattice")
+    room = World(rooms=[np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])])
+    with pytest.raises(ScenarioError, match=r"'boats'.*outside the rooms"):
+        initial_poses(scenario, room, np.random.default_rng(0))
+
+
+def test_lattice_round_trips() -> None:
+    start = {"lattice": {"center": [1.0, 2.0], "spacing_m": 10.0, "kind": "square"}, "heading_deg": 0.0}
+    scenario = validate_scenario(with_group(start=start), "lattice")
+    assert validate_scenario(tomllib.loads(scenario_to_toml(scenario)), "again") == scenario
 
 
 # ---------------------------------------------------------------- overrides
