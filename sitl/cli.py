@@ -1,4 +1,4 @@
-"""The `bob-sitl` command: list and run scenarios."""
+"""The `bob-sitl` command: list and run scenarios, sweep them, run them as a fleet of processes."""
 
 from __future__ import annotations
 
@@ -35,6 +35,27 @@ def _parser() -> argparse.ArgumentParser:
         help="vehicle link (physics): MAVLink bytes through firmware_bridge, or readings handed over directly",
     )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    fleet = sub.add_parser(
+        "fleet",
+        help="run a scenario as a fleet of processes: simulated vehicles and radio on UDP, one bob-autonomy per vessel",
+    )
+    fleet.add_argument("scenario", metavar="NAME|FILE")
+    fleet.add_argument(
+        "--processes", action="store_true", help="one bob-autonomy process per vessel (the only fleet mode so far)"
+    )
+    fleet.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second (default 1)")
+    fleet.add_argument("--agents", type=int, help="number of agents (resizes the scenario's main group)")
+    fleet.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    fleet.add_argument("--duration", type=float, metavar="SECONDS", help="simulated duration, s")
+    fleet.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/NAME-processes)")
+    fleet.add_argument("--estimator", choices=["simple", "ekf"], help="each vessel's pose estimator")
+    fleet.add_argument("--controller", choices=["simple", "mpc"], help="each vessel's velocity controller")
+    fleet.add_argument(
+        "--base-port", type=int, default=5760, help="UDP port of vehicle 0; vehicle i: base + 10 i (ArduPilot SITL)"
+    )
+    fleet.add_argument("--mesh-port", type=int, default=15000, help="UDP port of the simulated radio medium")
+    fleet.add_argument("--gcs-port", type=int, default=14600, help="UDP port the vessels' ground-station links reach")
+    fleet.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep = sub.add_parser("sweep", help="run a scenario over swarm sizes and seeds; plot metrics against size")
     sweep.add_argument("scenario", metavar="NAME|FILE")
     sweep.add_argument("--agents", type=int, nargs="+", required=True, help="swarm sizes")
@@ -53,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "sweep":
         return _sweep(args)
+    if args.command == "fleet":
+        return _fleet(args)
     try:
         scenario = load_scenario(args.scenario).with_overrides(
             args.agents, args.seed, args.duration, args.fidelity, args.estimator, args.controller, args.link
@@ -67,6 +90,34 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bob-sitl: {error}", file=sys.stderr)
         return 2
     summary = {k: v for k, v in result.metrics.items() if not isinstance(v, dict) or k == "criteria"}
+    print(json.dumps(summary, indent=2))
+    print(f"outputs in {out}/", file=sys.stderr)
+    return 0 if result.metrics["passed"] else 1
+
+
+def _fleet(args: argparse.Namespace) -> int:
+    from sitl.process_fleet import ProcessFleetError, ProcessOptions, run_processes_to_directory
+
+    if not args.processes:
+        print("bob-sitl: fleet needs --processes (for a fleet in one process use `bob-sitl run`)", file=sys.stderr)
+        return 2
+    try:
+        scenario = load_scenario(args.scenario).with_overrides(
+            args.agents, args.seed, args.duration, "physics", args.estimator, args.controller
+        )
+        options = ProcessOptions(
+            speed=args.speed, base_port=args.base_port, mesh_port=args.mesh_port, gcs_port=args.gcs_port
+        )
+    except (ScenarioError, ValueError) as error:
+        print(f"bob-sitl: {error}", file=sys.stderr)
+        return 2
+    out = args.out or Path("runs") / f"{scenario.name}-processes"
+    try:
+        result = run_processes_to_directory(scenario, out, options, progress=not args.quiet)
+    except (ScenarioError, ProcessFleetError, FileExistsError) as error:
+        print(f"bob-sitl: {error}", file=sys.stderr)
+        return 2
+    summary = {k: v for k, v in result.metrics.items() if not isinstance(v, dict) or k in ("criteria", "realtime")}
     print(json.dumps(summary, indent=2))
     print(f"outputs in {out}/", file=sys.stderr)
     return 0 if result.metrics["passed"] else 1

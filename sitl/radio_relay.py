@@ -1,0 +1,212 @@
+"""The simulated radio medium of a process fleet: one UDP port that every autonomy process sends its mesh packets to.
+
+Each datagram is one mesh packet (`bob_autonomy.mesh`). The relay tells the
+sender by the agent id inside the packet (`bob_autonomy.mesh.packet_agent_id`,
+agent = system id - 1) and remembers the address it came from; a datagram that
+is not a valid packet is counted (`invalid`) and dropped. Every packet is
+offered to every other agent whose address is known, with the channel model of
+`sitl.radio.RadioChannel` applied to the *true* positions of the simulated
+vehicles (never to what the agents believe):
+
+* beyond the range (`range_m`, at most the radio's nominal range) nothing is
+  heard (`out_of_range`, neither delivered nor dropped, as in the lockstep
+  `sitl.medium.BroadcastMedium`);
+* a packet over the radio's payload limit is dropped for every listener
+  (`oversize` packets, each listener counted in `dropped`);
+* otherwise `RadioChannel.deliver(rng, distance, interferers)` decides, where a
+  listener's interferers are the other transmitters (neither the sender nor the
+  listener) within range of it that sent within the last broadcast period;
+* a delivered packet goes, unchanged, to the listener's address after a latency
+  drawn by `RadioChannel.latency` (simulated seconds).
+
+Without a channel model (a scenario without `[network] radio`) every agent in
+range gets every packet at once. Removed (inactive) vehicles neither send nor
+hear. All draws come from the seeded generator given, so a relay fed the same
+packets in the same order decides the same way. The latest state each agent
+broadcast is kept (`latest`): the process fleet records it as what the agent
+believed of its pose.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import itertools
+import select
+import socket
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bob_autonomy.interfaces import AgentState
+from bob_autonomy.mesh import PacketError, decode_state, packet_agent_id
+from sitl.radio import RadioChannel
+
+DEFAULT_MESH_PORT = 15000
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+class RadioRelay:
+    """The mesh of n agents over UDP (see the module docstring).
+
+    positions: returns the agents' true positions (n, 2), m. active: returns (n,) bool, False for removed
+    vehicles. channel: the radio model, or None for perfect delivery within range_m. broadcast_period_s: the
+    window (s) in which a transmitter counts as an interferer. rng: draws deliveries and latencies. clock:
+    simulated time, s (default: wall time). memory_fields: the swarm's memory field names, in packet order
+    (to decode `latest`).
+    """
+
+    def __init__(
+        self,
+        n_agents: int,
+        positions: Callable[[], FloatArray],
+        active: Callable[[], BoolArray],
+        *,
+        channel: RadioChannel | None,
+        range_m: float,
+        broadcast_period_s: float,
+        rng: np.random.Generator,
+        clock: Callable[[], float] = time.monotonic,
+        host: str = "127.0.0.1",
+        port: int = DEFAULT_MESH_PORT,
+        memory_fields: Sequence[str] = (),
+    ) -> None:
+        if range_m <= 0 or broadcast_period_s <= 0:
+            raise ValueError("range_m and broadcast_period_s must be positive")
+        self.n = int(n_agents)
+        self.positions, self.active, self.clock = positions, active, clock
+        self.channel, self.rng = channel, rng
+        self.range_m = min(range_m, channel.nominal_range_m) if channel is not None else float(range_m)
+        self.period_s = float(broadcast_period_s)
+        self.memory_fields = list(memory_fields)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.bind((host, port))
+        except OSError as error:
+            self.sock.close()
+            raise OSError(
+                f"cannot bind the radio relay to UDP {host}:{port} ({error}); choose another --mesh-port"
+            ) from error
+        self.sock.setblocking(False)
+        self.address = self.sock.getsockname()
+        self.addresses: dict[int, tuple[str, int]] = {}
+        self.last_sent_s = np.full(self.n, -np.inf)
+        self.latest: dict[int, tuple[AgentState, float]] = {}  # agent -> (state, simulated time received)
+        self._queue: list[tuple[float, int, bytes, tuple[str, int]]] = []
+        self._seq = itertools.count()
+        self.sent = self.delivered = self.dropped = self.invalid = 0
+        self.out_of_range = self.oversize = self.from_inactive = 0
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def counters(self) -> dict[str, int]:
+        """sent (valid packets from active agents), delivered and dropped (per listener in range), invalid
+        datagrams, out_of_range (listener-packet pairs beyond range), oversize packets, from_inactive packets."""
+        names = ("sent", "delivered", "dropped", "invalid", "out_of_range", "oversize", "from_inactive")
+        return {name: int(getattr(self, name)) for name in names}
+
+    # -- in ------------------------------------------------------------------------------------------------
+
+    def read(self) -> int:
+        """Take every datagram waiting and offer each to the listeners; returns how many were read."""
+        count = 0
+        while True:
+            try:
+                data, sender = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return count
+            except ConnectionRefusedError:  # ICMP for an earlier send to an agent that has gone
+                continue
+            count += 1
+            self.offer(data, sender)
+
+    def offer(self, packet: bytes, sender: tuple[str, int]) -> None:
+        """One datagram from `sender`: identify its agent, then deliver or drop it for each other agent."""
+        agent = packet_agent_id(packet)
+        if agent is None or not 0 <= agent < self.n:
+            self.invalid += 1
+            return
+        now = float(self.clock())
+        self.addresses[agent] = sender
+        active = np.asarray(self.active(), dtype=bool)
+        if not active[agent]:
+            self.from_inactive += 1  # a removed vessel's radio is off
+            return
+        self.sent += 1
+        self.last_sent_s[agent] = now
+        with contextlib.suppress(PacketError):  # packet_agent_id has already decoded it
+            self.latest[agent] = (decode_state(packet, self.memory_fields), now)
+        listeners = np.array([j for j in self.addresses if j != agent and active[j]], dtype=np.intp)
+        if listeners.size == 0:
+            return
+        position = np.asarray(self.positions(), dtype=float)
+        distance = np.hypot(*(position[listeners] - position[agent]).T)
+        near = distance <= self.range_m
+        self.out_of_range += int(np.count_nonzero(~near))
+        listeners, distance = listeners[near], distance[near]
+        if listeners.size == 0:
+            return
+        if self.channel is None:
+            ok, latency = np.ones(listeners.size, dtype=bool), np.zeros(listeners.size)
+        elif len(packet) > self.channel.payload_limit_bytes:
+            self.oversize += 1
+            self.dropped += int(listeners.size)
+            return
+        else:
+            ok = self.channel.deliver(self.rng, distance, self._interferers(agent, listeners, position, active, now))
+            latency = self.channel.latency(self.rng, int(np.count_nonzero(ok)))
+        self.dropped += int(np.count_nonzero(~ok))
+        self.delivered += int(np.count_nonzero(ok))
+        for listener, delay in zip(listeners[ok].tolist(), latency.tolist(), strict=True):
+            heapq.heappush(self._queue, (now + delay, next(self._seq), packet, self.addresses[listener]))
+        self.flush()
+
+    def _interferers(
+        self, sender: int, listeners: NDArray[np.intp], position: FloatArray, active: BoolArray, now: float
+    ) -> FloatArray:
+        """Per listener: transmitters of the last broadcast period within range of it, sender and listener
+        excluded."""
+        transmitting = np.flatnonzero(active & (now - self.last_sent_s <= self.period_s + 1e-9))
+        transmitting = transmitting[transmitting != sender]
+        if transmitting.size == 0:
+            return np.zeros(listeners.size)
+        gap = np.hypot(*(position[listeners][:, None, :] - position[transmitting][None, :, :]).transpose(2, 0, 1))
+        heard = (gap <= self.range_m) & (listeners[:, None] != transmitting[None, :])
+        return heard.sum(axis=1).astype(float)
+
+    # -- out -----------------------------------------------------------------------------------------------
+
+    def next_due_s(self) -> float | None:
+        """Simulated time (s) of the next delivery waiting, or None."""
+        return self._queue[0][0] if self._queue else None
+
+    def flush(self) -> int:
+        """Send the deliveries that are due now; returns how many were sent."""
+        now, sent = float(self.clock()), 0
+        while self._queue and self._queue[0][0] <= now + 1e-9:
+            _, _, packet, address = heapq.heappop(self._queue)
+            try:
+                self.sock.sendto(packet, address)
+                sent += 1
+            except (BlockingIOError, ConnectionRefusedError):
+                pass  # a full buffer or a vanished agent: the radio is lossy anyway
+        return sent
+
+    def serve(self, wall_s: float) -> None:
+        """Relay for `wall_s` wall seconds (standalone use, when `clock` is wall time)."""
+        end = time.monotonic() + wall_s
+        while (left := end - time.monotonic()) > 0:
+            due = self.next_due_s()
+            wait = left if due is None else max(0.0, min(left, due - float(self.clock())))
+            ready, _, _ = select.select([self.sock], [], [], wait)
+            if ready:
+                self.read()
+            self.flush()
+
+    def close(self) -> None:
+        """Close the socket (undelivered packets are lost)."""
+        self.sock.close()

@@ -1,0 +1,327 @@
+"""The simulated vehicles as MAVLink endpoints on UDP, and the telemetry log (.tlog) of everything they exchange.
+
+Vehicle i (0-based) of a fleet is MAVLink system i + 1 and binds UDP
+HOST:(base_port + 10 i), base_port 5760 by default: the port numbers of
+ArduPilot SITL instances (`sim_vehicle.py -I i` serves SERIAL0 on 5760 + 10 i),
+so tools configured for a SITL fleet find the vehicles where they expect them.
+Anyone may connect with `udpout:HOST:PORT` (the `bob-autonomy` process,
+MAVProxy, QGroundControl): a vehicle answers every peer that sent it a datagram
+in the last `PEER_TIMEOUT_S` wall seconds, so several can listen at once.
+
+Each vehicle is a `sitl.mavlink_vehicle.SimulatedVehicle` (commands, arming,
+modes with COMMAND_ACK, failsafe). Its telemetry is encoded from the sensor
+readings of `sitl.vehicle_physics.VehiclePhysics` at the sensors' own rates:
+HEARTBEAT and SYS_STATUS at 1 Hz (simulated time), GPS_RAW_INT, ATTITUDE,
+SCALED_IMU and WHEEL_DISTANCE as the sensors deliver, and GLOBAL_POSITION_INT
+with every GPS fix (what a ground station such as MAVProxy shows as the
+vehicle's position). All frames of one vehicle and one step go out in one
+datagram to each peer.
+
+Every MAVLink frame received or sent is appended to a telemetry log in
+MAVProxy's `.tlog` format: per frame, an 8-byte big-endian count of
+microseconds since the Unix epoch, then the raw frame. `pymavlink.mavutil.
+mavlink_connection(path)` and `mavlogdump.py` read it.
+"""
+
+from __future__ import annotations
+
+import math
+import select
+import socket
+import struct
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from firmware_bridge.readings import SensorReadings
+from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle
+
+DEFAULT_BASE_PORT = 5760  # ArduPilot SITL instance 0 (SERIAL0)
+PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
+PEER_TIMEOUT_S = 5.0  # wall seconds: a peer that has sent nothing for this long no longer gets telemetry
+_V1, _V2 = 0xFE, 0xFD
+_UINT16_MAX = 65535
+
+
+def vehicle_port(index: int, base_port: int = DEFAULT_BASE_PORT) -> int:
+    """The UDP port of vehicle `index` (0-based): base_port + 10 index (ArduPilot's multi-instance rule)."""
+    return base_port + PORT_STRIDE * index
+
+
+def split_frames(data: bytes) -> list[bytes]:
+    """The MAVLink 1 and 2 frames in `data`, by their start markers and length bytes (bytes outside a complete
+    frame are skipped; checksums are not verified: that is the reader's job)."""
+    frames: list[bytes] = []
+    pos, n = 0, len(data)
+    while pos < n:
+        magic = data[pos]
+        if magic not in (_V1, _V2) or pos + 3 > n:
+            pos += 1
+            continue
+        length = data[pos + 1] + (8 if magic == _V1 else 12)
+        if magic == _V2 and data[pos + 2] & 0x01:
+            length += 13  # signature
+        if pos + length > n:
+            break
+        frames.append(bytes(data[pos : pos + length]))
+        pos += length
+    return frames
+
+
+class TlogWriter:
+    """Appends MAVLink frames to a `.tlog` (8-byte big-endian Unix time in microseconds, then the frame)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file = open(self.path, "ab")  # noqa: SIM115 - held open for the run, closed by close()
+        self.frames = 0
+
+    def write(self, data: bytes, unix_time_s: float | None = None) -> None:
+        """Log every frame in `data` (one datagram or several frames) with the given time (default: now)."""
+        stamp = struct.pack(">Q", round((time.time() if unix_time_s is None else unix_time_s) * 1e6))
+        for frame in split_frames(data):
+            self._file.write(stamp + frame)
+            self.frames += 1
+
+    def flush(self) -> None:
+        self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+
+class VehicleEndpoint:
+    """One simulated vehicle on one bound UDP socket, answering every recent peer."""
+
+    def __init__(self, vehicle: SimulatedVehicle, host: str, port: int, tlog: TlogWriter | None = None) -> None:
+        self.vehicle, self.tlog = vehicle, tlog
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.bind((host, port))
+        except OSError as error:
+            self.sock.close()
+            raise OSError(
+                f"cannot bind vehicle {vehicle.system_id} to UDP {host}:{port} ({error}); "
+                "is another simulation or SITL running? choose another --base-port"
+            ) from error
+        self.sock.setblocking(False)
+        self.address = self.sock.getsockname()
+        self.peers: dict[tuple[str, int], float] = {}  # address -> wall time last heard (time.monotonic)
+        self.bytes_in = self.bytes_out = 0
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def live_peers(self, now_wall_s: float | None = None) -> list[tuple[str, int]]:
+        """Peers heard within PEER_TIMEOUT_S wall seconds (older ones are forgotten)."""
+        now = time.monotonic() if now_wall_s is None else now_wall_s
+        for address in [a for a, heard in self.peers.items() if now - heard > PEER_TIMEOUT_S]:
+            del self.peers[address]
+        return list(self.peers)
+
+    def read(self, t_s: float) -> int:
+        """Take every datagram waiting: commands to the vehicle (at simulated time t_s), replies to the sender.
+        Returns the number of datagrams read."""
+        count = 0
+        while True:
+            try:
+                data, sender = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return count
+            except ConnectionRefusedError:  # an ICMP "port unreachable" for an earlier send: that peer is gone
+                continue
+            count += 1
+            self.bytes_in += len(data)
+            self.peers[sender] = time.monotonic()
+            if self.tlog is not None:
+                self.tlog.write(data)
+            replies = self.vehicle.receive(data, t_s)
+            if replies:
+                self._send_to(replies, [sender])
+
+    def send(self, data: bytes) -> None:
+        """Send telemetry to every live peer (logged once)."""
+        peers = self.live_peers()
+        if data and peers:
+            self._send_to(data, peers)
+
+    def _send_to(self, data: bytes, peers: Sequence[tuple[str, int]]) -> None:
+        for peer in peers:
+            try:
+                self.sock.sendto(data, peer)
+                self.bytes_out += len(data)
+            except (BlockingIOError, ConnectionRefusedError):
+                pass  # a full buffer or a vanished peer: telemetry is best effort, as on a radio link
+        if self.tlog is not None:
+            self.tlog.write(data)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class VehicleServer:
+    """The vehicles of a fleet on UDP (see the module docstring).
+
+    kinds: "buoy" or "ebot" per vehicle (fleet row order). max_actuators: full-scale thrust (N) or wheel speed
+    (m/s) per vehicle, what RC 1900 us stands for. metres_per_tick: eBot wheel travel per encoder tick, m.
+    failsafe_s: simulated seconds without a command after which a vehicle stops its actuators. armed: the
+    vehicles' state at start (False: the autonomy arms them). tlog: where every frame is logged (or None).
+    """
+
+    def __init__(
+        self,
+        kinds: Sequence[str],
+        max_actuators: Sequence[float],
+        *,
+        host: str = "127.0.0.1",
+        base_port: int = DEFAULT_BASE_PORT,
+        metres_per_tick: float = 1.0,
+        failsafe_s: float = 1.0,
+        armed: bool = False,
+        tlog: TlogWriter | None = None,
+    ) -> None:
+        self.kinds = list(kinds)
+        self.metres_per_tick = float(metres_per_tick)
+        self.tlog = tlog
+        self.endpoints: list[VehicleEndpoint] = []
+        try:
+            for i, (kind, limit) in enumerate(zip(self.kinds, max_actuators, strict=True)):
+                vehicle = SimulatedVehicle(i + 1, kind, limit, failsafe_s=failsafe_s, armed=armed)
+                self.endpoints.append(VehicleEndpoint(vehicle, host, vehicle_port(i, base_port), tlog))
+        except BaseException:
+            self.close()
+            raise
+        # Fleet rows of each kind, in order: sensor readings index vehicles within their kind.
+        self.rows = {k: np.array([i for i, x in enumerate(self.kinds) if x == k], dtype=np.intp) for k in (BUOY, EBOT)}
+
+    def __len__(self) -> int:
+        return len(self.endpoints)
+
+    @property
+    def vehicles(self) -> list[SimulatedVehicle]:
+        return [e.vehicle for e in self.endpoints]
+
+    @property
+    def ports(self) -> list[int]:
+        return [e.address[1] for e in self.endpoints]
+
+    def sockets(self) -> list[socket.socket]:
+        return [e.sock for e in self.endpoints]
+
+    def read(self, t_s: float, ready: Sequence[socket.socket] | None = None) -> int:
+        """Read what arrived on the vehicles' sockets (those in `ready`, or all) at simulated time t_s."""
+        wanted = None if ready is None else {s.fileno() for s in ready}
+        return sum(e.read(t_s) for e in self.endpoints if wanted is None or e.fileno() in wanted)
+
+    def serve(self, wall_s: float, t_s: float) -> None:
+        """Answer the vehicles' peers for `wall_s` wall seconds at simulated time t_s (no telemetry)."""
+        end = time.monotonic() + wall_s
+        while (left := end - time.monotonic()) > 0:
+            ready, _, _ = select.select(self.sockets(), [], [], left)
+            self.read(t_s, ready)
+
+    def actuators(self, t_s: float) -> np.ndarray:
+        """(n, 2) what each vehicle applies at t_s: thrust N (buoys) or wheel speeds m/s (eBots); zero when
+        disarmed, holding or in failsafe."""
+        return np.array([e.vehicle.actuator(t_s) for e in self.endpoints]).reshape(-1, 2)
+
+    def armed(self) -> np.ndarray:
+        """(n,) bool: which vehicles are armed (what their HEARTBEAT says)."""
+        return np.array([e.vehicle.armed for e in self.endpoints], dtype=bool)
+
+    def telemetry(self, t_s: float, readings: dict[str, SensorReadings]) -> list[bytes]:
+        """Each vehicle's telemetry frames for this step (housekeeping when due, then its sensors' readings).
+
+        readings: {"buoy": ..., "ebot": ...} as `VehiclePhysics.sense` returns (agents index within a kind).
+        """
+        frames = [bytearray(e.vehicle.housekeeping(t_s)) for e in self.endpoints]
+        for kind, r in readings.items():
+            rows = self.rows[kind]
+            if r.imu is not None:
+                m = r.imu
+                for i, k in enumerate(m.agents):
+                    row = rows[k]
+                    frames[row] += self.vehicles[row].telemetry.scaled_imu(t_s, m.accel_body_mps2[i], m.gyro_z_radps[i])
+            if r.gps is not None:
+                g = r.gps
+                for i, k in enumerate(g.agents):
+                    row = rows[k]
+                    velocity = None if g.velocity_mps is None else g.velocity_mps[i]
+                    telemetry = self.vehicles[row].telemetry
+                    frames[row] += telemetry.gps_raw_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
+                    frames[row] += global_position_int(telemetry, t_s, g.lat_deg[i], g.lon_deg[i], velocity)
+            if r.compass is not None:
+                c = r.compass
+                for i, k in enumerate(c.agents):
+                    row = rows[k]
+                    frames[row] += self.vehicles[row].telemetry.attitude(t_s, c.heading_rad[i])
+            if r.encoders is not None:
+                e = r.encoders
+                for i, k in enumerate(e.agents):
+                    row = rows[k]
+                    travel = e.ticks[i] * self.metres_per_tick
+                    frames[row] += self.vehicles[row].telemetry.wheel_distance(t_s, travel)
+        return [bytes(f) for f in frames]
+
+    def send_telemetry(self, t_s: float, readings: dict[str, SensorReadings]) -> None:
+        """Encode this step's telemetry and send each vehicle's to its live peers."""
+        for endpoint, data in zip(self.endpoints, self.telemetry(t_s, readings), strict=True):
+            endpoint.send(data)
+
+    def counters(self) -> dict[str, int]:
+        """Totals over the vehicles: commands applied, refused, failsafe stops, acks; bytes in and out."""
+        totals: dict[str, int] = {}
+        for e in self.endpoints:
+            for name, value in vars(e.vehicle.counters).items():
+                totals[name] = totals.get(name, 0) + int(value)
+            totals["bytes_in"] = totals.get("bytes_in", 0) + e.bytes_in
+            totals["bytes_out"] = totals.get("bytes_out", 0) + e.bytes_out
+        return totals
+
+    def close(self) -> None:
+        """Close every socket (the ports are free again)."""
+        for e in self.endpoints:
+            e.close()
+
+
+def global_position_int(
+    telemetry, t_s: float, lat_deg: float, lon_deg: float, velocity_mps: Sequence[float] | None
+) -> bytes:
+    """GLOBAL_POSITION_INT (what ground stations show as the position): lat/lon degE7, altitude 0, ground
+    velocity north/east cm/s (0 when unknown), heading unknown (UINT16_MAX). `telemetry`: the vehicle's
+    `firmware_bridge.telemetry.TelemetryEncoder`."""
+    east, north = (0.0, 0.0)
+    if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
+        east, north = float(velocity_mps[0]), float(velocity_mps[1])
+    message = telemetry.mav.global_position_int_encode(
+        max(0, int(t_s * 1000)) & 0xFFFFFFFF,
+        round(lat_deg * 1e7),
+        round(lon_deg * 1e7),
+        0,
+        0,
+        _cm_s(north),
+        _cm_s(east),
+        0,
+        _UINT16_MAX,
+    )
+    return telemetry.encoder.pack(message)
+
+
+def _cm_s(v_mps: float) -> int:
+    return int(max(-32767, min(32767, round(v_mps * 100.0))))
+
+
+__all__ = [
+    "DEFAULT_BASE_PORT",
+    "PEER_TIMEOUT_S",
+    "PORT_STRIDE",
+    "TlogWriter",
+    "VehicleEndpoint",
+    "VehicleServer",
+    "global_position_int",
+    "split_frames",
+    "vehicle_port",
+]
