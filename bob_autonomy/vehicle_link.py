@@ -41,7 +41,8 @@ class VehicleLink:
         if kind not in (BUOY, EBOT):
             raise ValueError(f"unknown vehicle kind {kind!r}; choose buoy or ebot")
         self.target_system, self.kind, self.max_actuator = target_system, kind, float(max_actuator)
-        self.decoder = TelemetryDecoder(clock, agent=agent, source_system=target_system)
+        # Raw GPS only: the autopilot's fused GLOBAL_POSITION_INT would be a second, correlated fix.
+        self.decoder = TelemetryDecoder(clock, agent=agent, source_system=target_system, fused_position=False)
         self.watch = HeartbeatWatch(heartbeat_timeout_s, clock, system=target_system)
         self.encoder = encoder if encoder is not None else Encoder()
         self.last_heartbeat: Heartbeat | None = None

@@ -388,6 +388,8 @@ class Vessel:
     def run(self, duration_s: float | None = None) -> VesselStats:
         """Arm, then run control steps every dt_s (clock seconds) until `stop()` or `duration_s` has passed."""
         self.arm()
+        if self.vehicle.last_heartbeat is None:
+            self.vehicle.watch.restart()  # the arming handshake was the start-up; silence counts from here
         end = math.inf if duration_s is None else self.clock.now() + duration_s
         next_tick = self.clock.now()
         while not self._stop.is_set() and self.clock.now() < end:

@@ -127,7 +127,8 @@ class TelemetryDecoder:
     """Bytes in, typed readings out, for one vehicle (readings carry `agents = [agent]`).
 
     `source_system`, when given, keeps only messages from that MAVLink system id (others are counted in
-    `counters.other_system`). `max_buffer` bounds the bytes held while waiting for a frame to complete.
+    `counters.other_system`). `fused_position=False` ignores GLOBAL_POSITION_INT (the autopilot's own fused
+    position), so that an estimator fed GPS_RAW_INT does not fuse every fix twice.
     """
 
     def __init__(
@@ -136,8 +137,10 @@ class TelemetryDecoder:
         *,
         agent: int = 0,
         source_system: int | None = None,
+        fused_position: bool = True,
     ) -> None:
         self.clock = clock
+        self.fused_position = fused_position
         self.agent = agent
         self.source_system = source_system
         self.counters = DecoderCounters()
@@ -285,6 +288,8 @@ class TelemetryDecoder:
         return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
 
     def _global_position_int(self, msg, t_s: float) -> GpsFix | None:
+        if not self.fused_position:
+            return None
         if msg.lat == 0 and msg.lon == 0:
             self.counters.no_fix += 1  # the autopilot has no position (yet)
             return None
@@ -396,6 +401,11 @@ class HeartbeatWatch:
         """Seconds since the last heartbeat (or since construction, before the first)."""
         reference = self._since_s if self.last_beat_s is None else self.last_beat_s
         return float(self.clock()) - reference
+
+    def restart(self) -> None:
+        """Count silence from now until the next heartbeat (e.g. once a slow start-up is over)."""
+        self.last_beat_s = None
+        self._since_s = float(self.clock())
 
     def is_silent(self) -> bool:
         return self.silent_for_s() > self.timeout_s

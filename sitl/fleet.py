@@ -139,7 +139,7 @@ class LockstepFleet:
         self.group_names = [g.name for g in scenario.groups]
         self.behaviors: list[Behavior] = [g.build() for g in scenario.groups]
         self.assignment = self.group_of.copy()
-        memory = self._memory_fields(scenario)
+        memory = self.memory_fields_of(scenario)
         net = scenario.network
         radio_rng = np.random.default_rng([scenario.seed, 1])  # its own stream: radio draws never shift the rest
         self.medium = BroadcastMedium(
@@ -155,7 +155,7 @@ class LockstepFleet:
         self.sync_table()
 
     @staticmethod
-    def _memory_fields(scenario: Scenario) -> dict[str, MemorySpec]:
+    def memory_fields_of(scenario: Scenario) -> dict[str, MemorySpec]:
         fields: dict[str, MemorySpec] = {}
         choices = [g.build() for g in scenario.groups]
         choices += [e.choice.build() for e in scenario.events if e.choice is not None]
@@ -238,7 +238,7 @@ class LockstepFleet:
         """Carry out the scheduled events that are due at the current time."""
         while self.pending and self.pending[0].t_s <= self.t + 1e-9:
             event = self.pending.pop(0)
-            agents = self._event_agents(event)
+            agents = self.event_agents(event)
             if event.action == "remove":
                 self.bodies.active[agents] = False
             else:
@@ -246,7 +246,7 @@ class LockstepFleet:
                 self.assignment[agents] = len(self.behaviors) - 1
             self.events_log.append({"t_s": round(self.t, 6), "action": event.action, "agents": agents.tolist()})
 
-    def _event_agents(self, event: Event) -> NDArray[np.intp]:
+    def event_agents(self, event: Event) -> NDArray[np.intp]:
         if event.agents is not None:
             agents = np.array(event.agents, dtype=np.intp)
             if agents.size and (agents.min() < 0 or agents.max() >= self.n):

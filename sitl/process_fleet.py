@@ -53,6 +53,7 @@ from tqdm import tqdm
 from behaviors.registry import behavior_class
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.supervisor import behavior_params
+from firmware_bridge.tlog import TlogWriter
 from sitl.bodies import BODY_KINDS, BUOY
 from sitl.fleet import LockstepFleet, build_world, initial_poses
 from sitl.metrics import METRICS
@@ -62,7 +63,7 @@ from sitl.recorder import Frame, Recorder
 from sitl.runner import estimation_errors, write_atomically
 from sitl.scenario import BehaviorChoice, Event, Scenario, ScenarioError, scenario_to_toml
 from sitl.vehicle_physics import PRE_ROLL_S, VehiclePhysics
-from sitl.vehicle_server import DEFAULT_BASE_PORT, TlogWriter, VehicleServer
+from sitl.vehicle_server import DEFAULT_BASE_PORT, VehicleServer
 from sitl.world import FloatArray
 
 DEFAULT_GCS_PORT = 14600  # where the autonomy processes' GCS links point (bob_autonomy.mission.MissionClient)
@@ -72,6 +73,16 @@ AUTONOMY_COMMAND = (sys.executable, "-m", "bob_autonomy.cli")  # `bob-autonomy`,
 
 # The BoB rule's parameters that MAVLink parameters carry (bob_autonomy.supervisor.behavior_params).
 BOB_RULE_CARRIED = ("p0", "H", "speed_scale", "max_speed", "goal_radius_m", "leader_id", "goal")
+
+
+def _die_with_parent() -> None:
+    """In a child, before exec: on Linux, ask for SIGTERM when the fleet process dies, even by SIGKILL, so no
+    autonomy process outlives it (elsewhere, a no-op: the normal shutdown path still stops them)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
 
 
 class ProcessFleetError(RuntimeError):
@@ -220,7 +231,7 @@ class ProcessFleet:
         self.choices: list[BehaviorChoice] = [BehaviorChoice(**_choice(g)) for g in scenario.groups]
         self.names = [c.build().name for c in self.choices]
         self.assignment = self.group_of.copy()
-        self.memory_fields = list(LockstepFleet._memory_fields(scenario))
+        self.memory_fields = list(LockstepFleet.memory_fields_of(scenario))
         self.pending = sorted(scenario.events, key=lambda e: e.t_s)
         self.events_log: list[dict] = []
         self.event_errors: list[str] = []
@@ -385,6 +396,7 @@ class ProcessFleet:
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
+                preexec_fn=_die_with_parent,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"},
             )
         except OSError as error:
@@ -560,7 +572,7 @@ class ProcessFleet:
         MAVLink parameters (in the background: the physics does not wait for the answers)."""
         while self.pending and self.pending[0].t_s <= self.t + 1e-9:
             event = self.pending.pop(0)
-            agents = LockstepFleet._event_agents(self, event)  # same selection (and draws) as the lockstep fleet
+            agents = LockstepFleet.event_agents(self, event)  # same selection (and draws) as the lockstep fleet
             if event.action == "remove":
                 self.bodies.stop(agents)
             else:

@@ -28,69 +28,24 @@ from __future__ import annotations
 import math
 import select
 import socket
-import struct
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
 from firmware_bridge.readings import SensorReadings
+from firmware_bridge.tlog import TlogWriter, split_frames
 from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle
 
 DEFAULT_BASE_PORT = 5760  # ArduPilot SITL instance 0 (SERIAL0)
 PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
 PEER_TIMEOUT_S = 5.0  # wall seconds: a peer that has sent nothing for this long no longer gets telemetry
-_V1, _V2 = 0xFE, 0xFD
 _UINT16_MAX = 65535
 
 
 def vehicle_port(index: int, base_port: int = DEFAULT_BASE_PORT) -> int:
     """The UDP port of vehicle `index` (0-based): base_port + 10 index (ArduPilot's multi-instance rule)."""
     return base_port + PORT_STRIDE * index
-
-
-def split_frames(data: bytes) -> list[bytes]:
-    """The MAVLink 1 and 2 frames in `data`, by their start markers and length bytes (bytes outside a complete
-    frame are skipped; checksums are not verified: that is the reader's job)."""
-    frames: list[bytes] = []
-    pos, n = 0, len(data)
-    while pos < n:
-        magic = data[pos]
-        if magic not in (_V1, _V2) or pos + 3 > n:
-            pos += 1
-            continue
-        length = data[pos + 1] + (8 if magic == _V1 else 12)
-        if magic == _V2 and data[pos + 2] & 0x01:
-            length += 13  # signature
-        if pos + length > n:
-            break
-        frames.append(bytes(data[pos : pos + length]))
-        pos += length
-    return frames
-
-
-class TlogWriter:
-    """Appends MAVLink frames to a `.tlog` (8-byte big-endian Unix time in microseconds, then the frame)."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._file = open(self.path, "ab")  # noqa: SIM115 - held open for the run, closed by close()
-        self.frames = 0
-
-    def write(self, data: bytes, unix_time_s: float | None = None) -> None:
-        """Log every frame in `data` (one datagram or several frames) with the given time (default: now)."""
-        stamp = struct.pack(">Q", round((time.time() if unix_time_s is None else unix_time_s) * 1e6))
-        for frame in split_frames(data):
-            self._file.write(stamp + frame)
-            self.frames += 1
-
-    def flush(self) -> None:
-        self._file.flush()
-
-    def close(self) -> None:
-        if not self._file.closed:
-            self._file.close()
 
 
 class VehicleEndpoint:

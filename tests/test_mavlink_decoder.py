@@ -267,3 +267,25 @@ def test_heartbeat_watch():
     assert watch.is_silent() and watch.silent_for_s() == pytest.approx(2.1)
     with pytest.raises(ValueError):
         HeartbeatWatch(0.0)
+
+
+def test_fused_position_can_be_ignored_so_raw_gps_is_not_fused_twice():
+    from firmware_bridge.telemetry import TelemetryEncoder
+
+    enc = TelemetryEncoder(1)
+    fused = enc.encoder.pack(enc.mav.global_position_int_encode(0, 13405000, 1039560000, 0, 0, 10, 20, 0, 0))
+    raw = enc.gps_raw_int(0.0, 1.3405, 103.956)
+    assert len(TelemetryDecoder().feed(fused + raw)) == 2
+    only_raw = TelemetryDecoder(fused_position=False)
+    assert len(only_raw.feed(fused + raw)) == 1 and only_raw.counters.decoded == 2
+
+
+def test_heartbeat_watch_restart_counts_silence_from_now():
+    now = [0.0]
+    watch = HeartbeatWatch(3.0, clock=lambda: now[0])
+    now[0] = 5.0
+    assert watch.is_silent()
+    watch.restart()
+    assert not watch.is_silent() and watch.silent_for_s() == 0.0
+    now[0] = 8.5
+    assert watch.is_silent()

@@ -34,6 +34,7 @@ from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import encode_state
 from bob_autonomy.vehicle_link import VehicleLink
 from firmware_bridge.commands import heartbeat
+from firmware_bridge.tlog import TlogWriter, split_frames
 from sitl.bodies import BUOY
 from sitl.environment import CurrentSpec, Environment, WindSpec
 from sitl.fleet import build_world, initial_poses
@@ -50,7 +51,7 @@ from sitl.recorder import TRAJECTORY_COLUMNS
 from sitl.scenario import BehaviorChoice, ScenarioError, scenario_to_toml, validate_scenario
 from sitl.swarm_metrics import nearest_neighbor_m
 from sitl.vehicle_physics import VehiclePhysics
-from sitl.vehicle_server import TlogWriter, VehicleServer, split_frames, vehicle_port
+from sitl.vehicle_server import VehicleServer, vehicle_port
 from sitl.world import World
 
 HOST = "127.0.0.1"
