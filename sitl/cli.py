@@ -55,6 +55,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     fleet.add_argument("--mesh-port", type=int, default=15000, help="UDP port of the simulated radio medium")
     fleet.add_argument("--gcs-port", type=int, default=14600, help="UDP port the vessels' ground-station links reach")
+    fleet.add_argument(
+        "--external-gcs",
+        action="store_true",
+        help="leave --gcs-port to your mission script (bob_autonomy.mission); the scenario may not have events",
+    )
     fleet.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep = sub.add_parser("sweep", help="run a scenario over swarm sizes and seeds; plot metrics against size")
     sweep.add_argument("scenario", metavar="NAME|FILE")
@@ -106,7 +111,11 @@ def _fleet(args: argparse.Namespace) -> int:
             args.agents, args.seed, args.duration, "physics", args.estimator, args.controller
         )
         options = ProcessOptions(
-            speed=args.speed, base_port=args.base_port, mesh_port=args.mesh_port, gcs_port=args.gcs_port
+            speed=args.speed,
+            base_port=args.base_port,
+            mesh_port=args.mesh_port,
+            gcs_port=args.gcs_port,
+            external_gcs=args.external_gcs,
         )
     except (ScenarioError, ValueError) as error:
         print(f"bob-sitl: {error}", file=sys.stderr)

@@ -35,14 +35,12 @@ import dataclasses
 import json
 import math
 import os
-import re
 import select
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -95,7 +93,8 @@ class ProcessOptions:
 
     speed: simulated seconds per wall second. host: where the vehicles, relay and GCS listen. base_port:
     vehicle i listens on base_port + 10 i. mesh_port: the radio relay. gcs_port: the mission client that
-    carries set-behavior events (used when the autonomy offers `--gcs`). failsafe_s: simulated seconds
+    carries set-behavior events; external_gcs: leave that port to the user's mission script (no events then).
+    failsafe_s: simulated seconds
     without a command before a vehicle stops. arm_timeout_s, stop_timeout_s: wall seconds to wait for every
     vehicle to be armed, and for the processes to exit after SIGTERM. autonomy: the command that runs
     `bob-autonomy`.
@@ -106,6 +105,7 @@ class ProcessOptions:
     base_port: int = DEFAULT_BASE_PORT
     mesh_port: int = DEFAULT_MESH_PORT
     gcs_port: int = DEFAULT_GCS_PORT
+    external_gcs: bool = False
     failsafe_s: float = 1.0
     arm_timeout_s: float = 60.0
     stop_timeout_s: float = 3.0
@@ -159,17 +159,6 @@ class ProcessRunResult:
     fleet: ProcessFleet
     recorder: Recorder
     metrics: dict = field(default_factory=dict)
-
-
-def autonomy_options(command: Sequence[str] = AUTONOMY_COMMAND) -> set[str]:
-    """The options `bob-autonomy run` accepts (from its --help), so newer options are used only when there."""
-    try:
-        done = subprocess.run([*command, "run", "--help"], capture_output=True, text=True, timeout=60, check=False)
-    except (OSError, subprocess.TimeoutExpired) as error:
-        raise ProcessFleetError(f"cannot run {' '.join(command)}: {error}") from error
-    if done.returncode != 0:
-        raise ProcessFleetError(f"`{' '.join(command)} run --help` failed: {done.stderr.strip()[-500:]}")
-    return set(re.findall(r"--[a-z][a-z0-9-]*", done.stdout))
 
 
 def behavior_parameters(base: BehaviorChoice, new: BehaviorChoice, frame: LocalFrame) -> dict[str, float]:
@@ -251,7 +240,7 @@ class ProcessFleet:
         self._stop = threading.Event()
         self._k = 0  # physics steps since the physics started (boot)
         self._wall0 = 0.0
-        self.mission = None  # MissionClient, when the autonomy offers --gcs
+        self.mission = None  # the fleet's MissionClient (set-behavior events), unless external_gcs
         self.tlog: TlogWriter | None = None
         self.server: VehicleServer | None = None
         self.medium: RadioRelay | None = None
@@ -293,12 +282,11 @@ class ProcessFleet:
     def start(self) -> None:
         """Bind the vehicles, the relay (and the GCS), start the autonomy processes."""
         o, s = self.options, self.scenario
-        flags = autonomy_options(o.autonomy)
-        if any(e.action == "set-behavior" for e in s.events) and "--gcs" not in flags:
+        if any(e.action == "set-behavior" for e in s.events) and o.external_gcs:
             raise ScenarioError(
-                f"{s.name}: set-behavior events need the autonomy's ground-station link (`bob-autonomy run --gcs`, "
-                "MAVLink parameters set by bob_autonomy.mission.MissionClient), which this bob-autonomy does not "
-                "offer yet; run the scenario with `bob-sitl run` (lockstep) or remove its set-behavior events"
+                f"{s.name}: its set-behavior events are sent by the fleet's own ground station (MAVLink parameters "
+                "on --gcs-port); with --external-gcs your mission script owns that port: remove the events "
+                "(the script can send them) or drop --external-gcs"
             )
         self.needs_gcs = any(e.action == "set-behavior" for e in s.events)
         self._check_events()
@@ -333,7 +321,7 @@ class ProcessFleet:
             )
         except OSError as error:
             raise ProcessFleetError(str(error)) from error
-        if "--gcs" in flags:
+        if not o.external_gcs:
             from bob_autonomy.mission import MissionClient
 
             try:
@@ -341,7 +329,7 @@ class ProcessFleet:
             except OSError as error:
                 raise ProcessFleetError(f"{error}; choose another --gcs-port") from error
         for i in range(self.n):
-            self._launch(i, kinds[i], flags)
+            self._launch(i, kinds[i])
 
     def _check_events(self) -> None:
         """Every set-behavior event must be expressible as MAVLink parameters (checked before anything starts)."""
@@ -352,7 +340,7 @@ class ProcessFleet:
             for g in groups:
                 behavior_parameters(self.choices[self.group_names.index(g)], event.choice, self.frame)
 
-    def _launch(self, i: int, kind: str, flags: set[str]) -> None:
+    def _launch(self, i: int, kind: str) -> None:
         o, s = self.options, self.scenario
         assert self.server is not None
         choice = self.choices[self.group_of[i]]
@@ -379,14 +367,9 @@ class ProcessFleet:
             command += ["--start-heading", repr(float(self.start_heading[i]))]
         if group.thrust_fraction != 1.0:
             command += ["--max-thrust-fraction", repr(float(group.thrust_fraction))]
-        optional = {
-            "--broadcast-period": repr(float(s.network.broadcast_period_s)),
-            "--neighbor-expiry": repr(float(s.network.expiry_s)),
-            "--gcs": f"udpout:{o.host}:{o.gcs_port}",
-        }
-        for flag, value in optional.items():
-            if flag in flags:
-                command += [flag, value]
+        command += ["--broadcast-period", repr(float(s.network.broadcast_period_s))]
+        command += ["--neighbor-expiry", repr(float(s.network.expiry_s))]
+        command += ["--gcs", f"udpout:{o.host}:{o.gcs_port}"]
         out = open(self.out / f"vessel-{i + 1:02d}.out", "wb")  # noqa: SIM115 - closed in stop_processes()
         self._logs.append(out)
         try:
