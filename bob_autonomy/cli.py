@@ -89,6 +89,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--start-y", type=float, default=0.0, help="known start position y (eBots), m")
     run.add_argument("--start-heading", type=float, default=0.0, help="known start heading (eBots), rad")
     run.add_argument("--max-thrust-fraction", type=float, default=1.0, help="usable share of the nominal thrust")
+    run.add_argument(
+        "--vehicle-timeout", type=float, default=3.0, help="vehicle lost after this long with no HEARTBEAT, s"
+    )
     run.add_argument("--gcs", help="ground-station link, e.g. udpout:10.0.0.1:14550 or udpin:0.0.0.0:14560")
     run.add_argument("--params-file", help="persistent parameters (JSON, written atomically); default: in memory")
     run.add_argument("--signing-key", help="MAVLink 2 signing key file (see docs/gcs-protocol.md)")
@@ -174,6 +177,7 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         controller=args.controller,
         start_pose=(args.start_x, args.start_y, args.start_heading),
         max_thrust_fraction=args.max_thrust_fraction,
+        heartbeat_timeout_s=args.vehicle_timeout,
         gcs=args.gcs,
         params_file=args.params_file,
         signing_key_file=args.signing_key,

@@ -69,3 +69,7 @@ def test_radio_table_within_three_points() -> None:
 def test_ebot_scenarios_hold_at_physics_fidelity(name: str) -> None:
     m = run(name, fidelity="physics")
     assert m["passed"], m["criteria"]
+    # Each eBot acts on its own dead reckoning (encoders + compass); its error against truth is reported.
+    errors = m["estimation"]["ebot"]
+    assert 0.0 < errors["position_rms_m"] <= errors["position_max_m"] < 5.0
+    assert errors["heading_rms_deg"] < 10.0
