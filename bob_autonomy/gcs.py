@@ -59,6 +59,7 @@ from bob_autonomy.params import (
     ParameterStore,
     validate_latlon,
 )
+from firmware_bridge.decoder import classify_frame, next_marker
 
 __all__ = [
     "COMPONENT_ID",
@@ -279,7 +280,7 @@ class MavlinkCodec:
         n = len(buf)
         pos = 0
         while pos < n:
-            start = _next_marker(buf, pos)
+            start = next_marker(buf, pos)
             if start < 0:
                 c.skipped_bytes += n - pos
                 pos = n
@@ -296,8 +297,9 @@ class MavlinkCodec:
                 break  # wait for the rest
             frame = bytearray(buf[pos : pos + length])
             c.frames += 1
-            verdict, msg = self._check(frame, magic, end=pos + length, n=n)
-            if verdict == "bad":
+            end = pos + length
+            verdict, msg = classify_frame(frame, self._decoder, followed=end == n or buf[end] in (_V1, _V2))
+            if verdict in ("bad_crc", "malformed"):
                 c.malformed += 1
                 c.skipped_bytes += 1
                 pos += 1  # resynchronise one byte on: a real frame may start inside this one
@@ -313,32 +315,6 @@ class MavlinkCodec:
             c.accepted += 1
             messages.append(msg)
         del buf[:pos]
-
-    def _check(self, frame: bytearray, magic: int, end: int, n: int):
-        """("ok", message), ("unknown", None) or ("bad", None) for one complete candidate frame."""
-        if magic == _V2:
-            if frame[2] & ~_SIGNED:
-                return "bad", None
-            msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
-        else:
-            msg_id = frame[5]
-        msg_type = mavlink.mavlink_map.get(msg_id)
-        if msg_type is None:
-            # The checksum of an unknown message cannot be verified: believe the frame only when another
-            # frame (or the end of the data) follows it.
-            if end == n or self._buf[end] in (_V1, _V2):
-                return "unknown", None
-            return "bad", None
-        sig_len = _SIG_LEN if (magic == _V2 and frame[2] & _SIGNED) else 0
-        crc_end = len(frame) - sig_len
-        crcbuf = frame[1 : crc_end - 2]
-        crcbuf.append(msg_type.crc_extra)
-        if mavlink.x25crc(crcbuf).crc != frame[crc_end - 2] | (frame[crc_end - 1] << 8):
-            return "bad", None
-        try:
-            return "ok", self._decoder.decode(frame)
-        except Exception:
-            return "bad", None
 
     def _authenticate(self, frame: bytearray, magic: int) -> str | None:
         """None if the frame may be used, else the name of the counter of its rejection."""
@@ -365,16 +341,6 @@ class MavlinkCodec:
         self.streams[stream] = timestamp
         self.mav.signing.timestamp = max(self.mav.signing.timestamp, timestamp)
         return None
-
-
-def _next_marker(buf: bytearray, pos: int) -> int:
-    a = buf.find(bytes([_V1]), pos)
-    b = buf.find(bytes([_V2]), pos)
-    if a < 0:
-        return b
-    if b < 0:
-        return a
-    return min(a, b)
 
 
 # -- the component ----------------------------------------------------------------------------------------------

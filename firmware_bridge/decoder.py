@@ -123,6 +123,36 @@ def heading_from_yaw(yaw_rad: float) -> float:
     return wrap_angle(math.pi / 2.0 - yaw_rad)
 
 
+def classify_frame(frame: bytearray, mav: mavlink.MAVLink, followed: bool) -> tuple[str, object]:
+    """Judge one complete candidate frame: ("ok", message), ("unknown", None), ("bad_crc", None) or
+    ("malformed", None). `followed`: the frame ends the data so far or another start marker follows it.
+
+    The checksum of a message id the dialect does not know cannot be verified (no CRC_EXTRA), so an unknown
+    frame is only believed when `followed`; otherwise its start marker is taken for noise. Signatures are
+    not checked here (see bob_autonomy.gcs for signed links)."""
+    magic = frame[0]
+    if magic == _V2:
+        if frame[2] & ~_SIGNED:
+            return "malformed", None
+        msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
+    else:
+        msg_id = frame[5]
+    msg_type = mavlink.mavlink_map.get(msg_id)
+    if msg_type is None:
+        return ("unknown", None) if followed else ("malformed", None)
+    signature_len = _SIGNATURE_LEN if (magic == _V2 and frame[2] & _SIGNED) else 0
+    crc_end = len(frame) - signature_len
+    crc = frame[crc_end - 2] | (frame[crc_end - 1] << 8)
+    crcbuf = frame[1 : crc_end - 2]
+    crcbuf.append(msg_type.crc_extra)
+    if mavlink.x25crc(crcbuf).crc != crc:
+        return "bad_crc", None
+    try:
+        return "ok", mav.decode(frame)
+    except Exception:
+        return "malformed", None
+
+
 class TelemetryDecoder:
     """Bytes in, typed readings out, for one vehicle (readings carry `agents = [agent]`).
 
@@ -190,7 +220,7 @@ class TelemetryDecoder:
         pos = 0
         n = len(buf)
         while pos < n:
-            start = _next_marker(buf, pos)
+            start = next_marker(buf, pos)
             if start < 0:
                 c.skipped_bytes += n - pos
                 pos = n
@@ -208,7 +238,8 @@ class TelemetryDecoder:
                 break  # incomplete: wait for more bytes
             frame = bytearray(buf[pos : pos + length])
             c.received += 1
-            verdict, msg = self._check(frame, magic, header_len, end=pos + length, n=n)
+            end = pos + length
+            verdict, msg = classify_frame(frame, self._mav, followed=end == n or buf[end] in (_V1, _V2))
             if verdict == "unknown":
                 c.unknown += 1
             elif verdict != "ok":
@@ -231,37 +262,6 @@ class TelemetryDecoder:
             if self.message_hook is not None:
                 self.message_hook(msg)
         del buf[:pos]
-
-    def _check(self, frame: bytearray, magic: int, header_len: int, end: int, n: int):
-        """Classify one complete candidate frame: ("ok", message), ("unknown", None), ("bad_crc", None)
-        or ("malformed", None)."""
-        if magic == _V2:
-            incompat = frame[2]
-            if incompat & ~_SIGNED:
-                return "malformed", None
-            msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
-        else:
-            msg_id = frame[5]
-        msg_type = mavlink.mavlink_map.get(msg_id)
-        if msg_type is None:
-            # Without the message's CRC_EXTRA the checksum cannot be verified, so an unknown frame is only
-            # believed when another frame (or the end of the data so far) follows it; otherwise its marker
-            # is taken for noise.
-            if end == n or self._buf[end] in (_V1, _V2):
-                return "unknown", None
-            return "malformed", None
-        signature_len = _SIGNATURE_LEN if (magic == _V2 and frame[2] & _SIGNED) else 0
-        crc_end = len(frame) - signature_len
-        crc = frame[crc_end - 2] | (frame[crc_end - 1] << 8)
-        crcbuf = frame[1 : crc_end - 2]
-        crcbuf.append(msg_type.crc_extra)
-        if mavlink.x25crc(crcbuf).crc != crc:
-            return "bad_crc", None
-        try:
-            msg = self._mav.decode(frame)
-        except Exception:
-            return "malformed", None
-        return "ok", msg
 
     # -- conversion ------------------------------------------------------------------------------------
 
@@ -361,7 +361,7 @@ _CONVERTERS: dict[str, Callable[[TelemetryDecoder, object, float], Reading | Non
 }
 
 
-def _next_marker(buf: bytearray, pos: int) -> int:
+def next_marker(buf: bytearray, pos: int) -> int:
     """Index of the next MAVLink start marker (v1 or v2) at or after pos, or -1."""
     a = buf.find(_MARKERS[0], pos)
     b = buf.find(_MARKERS[1], pos)
