@@ -83,7 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--dt", type=float, default=0.1, help="control period, s")
     run.add_argument("--broadcast-period", type=float, default=0.1, help="state broadcast period, s")
     run.add_argument("--neighbor-expiry", type=float, default=1.0, help="forget neighbours not heard for this long, s")
-    run.add_argument("--estimator", choices=["simple", "ekf"], default="simple")
+    run.add_argument("--estimator", choices=["simple", "ekf"], default="ekf")
     run.add_argument("--controller", choices=["mpc", "simple"], default="mpc")
     run.add_argument("--start-x", type=float, default=0.0, help="known start position x (eBots), m")
     run.add_argument("--start-y", type=float, default=0.0, help="known start position y (eBots), m")

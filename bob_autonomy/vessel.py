@@ -74,7 +74,7 @@ class VesselConfig:
     dt_s: float = 0.1
     broadcast_period_s: float = 0.1
     neighbor_expiry_s: float = 1.0
-    estimator: str = "simple"
+    estimator: str = "ekf"
     controller: str = "mpc"
     start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_thrust_fraction: float = 1.0

@@ -24,8 +24,14 @@ _EXPORTS = {
     "heartbeat": "commands",
     "command_long_arm": "commands",
     "set_mode": "commands",
+    "thrust_from_rc": "commands",
+    "wheels_from_rc": "commands",
     "open_link": "links",
     "LinkError": "links",
+    "TelemetryEncoder": "telemetry",
+    "TlogWriter": "tlog",
+    "EbotSerial": "ebot_serial",
+    "EbotMavlinkBridge": "ebot_bridge",
 }
 __all__ = sorted(_EXPORTS)
 

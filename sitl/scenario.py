@@ -236,8 +236,8 @@ class SensorsSpec(Model):
 class VesselSpec(Model):
     """The autonomy on each vessel (physics fidelity): which pose estimator and which controller.
 
-    estimator: "simple" (alpha-beta GPS tracker / odometry) or "ekf" (filterpy
-    EKFs with a drift state; several times slower). controller: "mpc" (casadi
+    estimator: "ekf" (the default: EKFs with filterpy's equations, a water-drift
+    state for buoys) or "simple" (alpha-beta GPS tracker / odometry). controller: "mpc" (casadi
     QP, the default) or "simple" (proportional with drag feed-forward). The
     MPC's horizon step is the scenario's dt_s. link: "mavlink" (the full stack:
     each vehicle sends MAVLink telemetry bytes that the vessel decodes with
@@ -245,7 +245,7 @@ class VesselSpec(Model):
     "direct" (readings and commands handed over as objects; faster).
     """
 
-    estimator: Literal["simple", "ekf"] = "simple"
+    estimator: Literal["simple", "ekf"] = "ekf"
     controller: Literal["simple", "mpc"] = "mpc"
     link: Literal["direct", "mavlink"] = "mavlink"
 
