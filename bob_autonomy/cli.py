@@ -4,6 +4,7 @@
     bob-autonomy run --vehicle udpout:127.0.0.1:5760 --system-id 1 --behavior bob-rule --param p0=5 \\
         --mesh udpout:127.0.0.1:15000 --origin 1.3405,103.9560
     bob-autonomy run --config /etc/bob/vessel.toml      # as a service (docs/vessel.toml, docs/bob-autonomy.service)
+    bob-autonomy --config /etc/bob/vessel.toml          # the same: `run` is the default command
 
 `run` drives one MAVLink vehicle until SIGTERM or Ctrl-C, then leaves its
 actuators at zero. A config file holds the same settings as the options (names
@@ -211,6 +212,9 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0].startswith("--") and argv[0] not in ("--help", "-h"):
+        argv.insert(0, "run")  # `bob-autonomy --vehicle ... --behavior ...` is `bob-autonomy run ...`
     try:
         args = _apply_config_file(_parser(), argv)
     except ValueError as error:

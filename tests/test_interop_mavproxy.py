@@ -1,11 +1,13 @@
-"""Interop with MAVProxy (from PyPI, in the dev extras): it lists and sets the parameters of a running
-autonomy process and uploads waypoints to it, as a field engineer would from a ground station."""
+"""Interop with MAVProxy (from PyPI, in the dev extras): it shows a simulated vehicle of a `bob-sitl fleet`
+run (heartbeat, armed, position), and it lists and sets the parameters of a running autonomy process and
+uploads waypoints to it, as a field engineer would from a ground station."""
 
 from __future__ import annotations
 
 import queue
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -26,9 +28,9 @@ pytestmark = pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not instal
 class MavproxySession:
     """mavproxy.py with its console on pipes: send a command line, wait for a line matching a pattern."""
 
-    def __init__(self, master: str, cwd: Path) -> None:
+    def __init__(self, master: str, cwd: Path, component: int = 191) -> None:
         self.process = subprocess.Popen(
-            [MAVPROXY, f"--master={master}", "--target-system=1", "--target-component=191", "--nowait",
+            [MAVPROXY, f"--master={master}", "--target-system=1", f"--target-component={component}", "--nowait",
              "--no-state", "--state-basedir", str(cwd)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=cwd,
         )  # fmt: skip
@@ -109,3 +111,36 @@ def test_mavproxy_lists_and_sets_parameters_and_uploads_waypoints(tmp_path: Path
     assert vessel.params.get("BOB_P0_M") == 7.5
     assert vessel.supervisor.behavior().p0 == 7.5
     assert vessel.params.goals == [ORIGIN, (ORIGIN[0] + 0.0002, ORIGIN[1] + 0.0001)]
+
+
+def test_mavproxy_shows_a_simulated_vehicle_of_a_process_fleet(tmp_path: Path) -> None:
+    from test_process_fleet import aggregation_scenario, free_ports
+
+    from sitl.scenario import scenario_to_toml, validate_scenario
+
+    base, (mesh, gcs) = free_ports(1, extra=2)
+    data = aggregation_scenario(count=1, duration_s=600.0).model_dump()
+    data["events"] = []
+    path = tmp_path / "one.toml"
+    path.write_text(scenario_to_toml(validate_scenario(data, "one buoy")))
+    fleet = subprocess.Popen(
+        [sys.executable, "-m", "sitl.cli", "fleet", str(path), "--processes", "--base-port", str(base),
+         "--mesh-port", str(mesh), "--gcs-port", str(gcs), "--out", str(tmp_path / "run"), "--quiet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    session = MavproxySession(f"udpout:127.0.0.1:{base}", tmp_path, component=1)
+    try:
+        session.expect(r"Detected vehicle 1:1", 60.0)
+        session.expect(r"ARMED", 30.0)  # armed by its bob-autonomy process
+        time.sleep(3.0)
+        session.send("status GLOBAL_POSITION_INT")
+        match = session.expect(r"GLOBAL_POSITION_INT \{.*lat : (-?\d+), lon : (-?\d+)", 10.0)
+        lat, lon = int(match.group(1)) / 1e7, int(match.group(2)) / 1e7
+        origin = validate_scenario(data, "one buoy").origin
+        assert abs(lat - origin.lat_deg) < 1e-3 and abs(lon - origin.lon_deg) < 1e-3  # at the scenario's origin
+        session.send("status HEARTBEAT")
+        session.expect(r"HEARTBEAT \{type : 11, autopilot : 3", 10.0)  # a surface boat, ArduPilot-like
+    finally:
+        session.close()
+        fleet.send_signal(signal.SIGINT)
+        fleet.wait(timeout=60)

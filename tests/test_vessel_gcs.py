@@ -199,3 +199,11 @@ def test_sigterm_leaves_the_thrusters_at_zero(tmp_path: Path) -> None:
         assert "stopped cleanly" in (tmp_path / "autonomy.log").read_text()
     finally:
         vehicle.close()
+
+
+def test_run_is_the_default_command(tmp_path: Path) -> None:
+    from bob_autonomy.cli import main
+
+    bad = tmp_path / "vessel.toml"
+    bad.write_text("sytem_id = 3\n")
+    assert main(["--config", str(bad)]) == 2  # parsed as `run --config ...`: the unknown setting is reported
