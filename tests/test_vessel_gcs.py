@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -207,3 +208,44 @@ def test_run_is_the_default_command(tmp_path: Path) -> None:
     bad = tmp_path / "vessel.toml"
     bad.write_text("sytem_id = 3\n")
     assert main(["--config", str(bad)]) == 2  # parsed as `run --config ...`: the unknown setting is reported
+
+
+def test_goal_seeking_mission_script_brings_two_vessels_to_the_goal() -> None:
+    from test_examples import load_example
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    rigs = []
+    for system_id, start in ((1, (0.0, 0.0)), (2, (0.0, 8.0))):
+        vehicle = StandInVehicle(start, system_id)
+        vehicle.start()
+        config = VesselConfig(
+            vehicle=f"udpout:127.0.0.1:{vehicle.port}",
+            system_id=system_id,
+            behavior=BehaviorChoice(behavior="bob-rule", params={"p0": 5.0}),
+            origin=ORIGIN,
+            time_scale=SCALE,
+            controller="simple",
+            gcs=f"udpout:127.0.0.1:{port}",
+            autostart=False,
+        )
+        vessel = Vessel(config, clock=ScaledWallClock(SCALE))
+        thread = threading.Thread(target=vessel.run, daemon=True)
+        thread.start()
+        rigs.append((vehicle, vessel, thread))
+    try:
+        example = load_example("mission_goal_seeking")
+        code = example.main(
+            ["--connection", f"udpin:127.0.0.1:{port}", "--vessels", "2", "--east", "20", "--north", "4",
+             "--radius", "6", "--timeout", "40", "--discover-timeout", "20"]
+        )  # fmt: skip
+        assert code == 0
+        for vehicle, _vessel, _thread in rigs:
+            assert np.hypot(vehicle.position[0] - 20.0, vehicle.position[1] - 4.0) < 8.0, vehicle.position
+    finally:
+        for vehicle, vessel, thread in rigs:
+            vessel.stop()
+            thread.join(5.0)
+            vehicle.close()
