@@ -28,7 +28,10 @@ from firmware_bridge.ebot_serial import EbotProtocolError, EbotSerial, wheel_com
 from firmware_bridge.links import LinkError, open_link
 from sitl.ebot_serial_sim import EbotSerialSim
 
-pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
+pytestmark = [
+    pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX"),
+    pytest.mark.xdist_group("realtime"),  # real-time robot simulation: never beside the other real-time tests
+]
 
 MAX_WHEEL_MPS = 0.2  # the eBot's (and the simulator's) full wheel speed
 SYSTEM_ID = 7

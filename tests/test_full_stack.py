@@ -1,7 +1,8 @@
 """The lockstep full stack: vehicles and vessels exchange real MAVLink bytes (sitl.vehicle_transport).
 
 The vessels decode telemetry with firmware_bridge and drive with RC_CHANNELS_OVERRIDE; the result must
-match the direct hand-over of readings up to PWM quantization, and meet the aggregation criteria.
+match the direct hand-over of readings up to PWM quantization. (The scenario criteria are checked with the
+direct link in tests/test_physics_scenarios.py, and over real processes in tests/test_process_fleet.py.)
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ from sitl.sensors import CompassSpec, GpsSpec, ImuSpec
 @pytest.fixture(scope="module")
 def two_links() -> dict:
     runs = {}
+    # The alpha-beta estimator uses the readings' times only to extrapolate, so the comparison isolates the
+    # transport (the EKF also replays by time, and MAVLink readings carry their reception time).
     for link in ("direct", "mavlink"):
-        result = simulate(load_scenario("aggregation").with_overrides(duration_s=120.0, link=link))
+        scenario = load_scenario("aggregation").with_overrides(duration_s=120.0, link=link, estimator="simple")
+        result = simulate(scenario)
         runs[link] = result
     return runs
 
@@ -47,9 +51,3 @@ def test_every_byte_went_through_firmware_bridge(two_links: dict) -> None:
     assert abs(counters["vessel_decoded"] - expected) <= 45 * 5 * 2, (counters["vessel_decoded"], expected)
     assert counters["vessel_bad_crc"] == counters["vessel_malformed"] == 0
     assert two_links["direct"].metrics.get("vehicle_link") == {}
-
-
-def test_aggregation_meets_its_criteria_over_mavlink() -> None:
-    m = simulate(load_scenario("aggregation").with_overrides(link="mavlink")).metrics
-    assert m["criteria"] == {k: True for k in m["criteria"]}, m["criteria"]
-    assert 625 <= m["area_aggregated_m2"] <= 2_500

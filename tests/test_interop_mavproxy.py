@@ -22,7 +22,10 @@ from bob_autonomy.clock import ScaledWallClock
 from bob_autonomy.vessel import Vessel, VesselConfig
 
 MAVPROXY = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent)) or shutil.which("mavproxy.py")
-pytestmark = pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install -e '.[dev]')")
+pytestmark = [
+    pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install -e '.[dev]')"),
+    pytest.mark.xdist_group("realtime"),  # real time and processes: never beside the other real-time tests
+]
 
 
 class MavproxySession:

@@ -14,10 +14,14 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from test_examples import load_example
 from test_process_fleet import aggregation_scenario, free_ports
 
 from sitl.scenario import scenario_to_toml, validate_scenario
+
+# Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
+pytestmark = pytest.mark.xdist_group("realtime")
 
 
 def test_mission_script_aggregates_a_process_fleet(tmp_path: Path) -> None:

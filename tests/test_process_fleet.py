@@ -54,6 +54,9 @@ from sitl.vehicle_physics import VehiclePhysics
 from sitl.vehicle_server import VehicleServer, vehicle_port
 from sitl.world import World
 
+# Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
+pytestmark = pytest.mark.xdist_group("realtime")
+
 HOST = "127.0.0.1"
 DT_S = 0.1
 ORIGIN = LocalFrame(1.3406, 103.9266)

@@ -29,6 +29,9 @@ from bob_autonomy.mesh import (
 )
 from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
 
+# Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
+pytestmark = pytest.mark.xdist_group("realtime")
+
 
 def _state(agent: int = 7, memory: dict | None = None) -> AgentState:
     return AgentState(agent, 12.5, Pose(101.25, -40.5, 1.0, 0.25, -0.5), memory or {})

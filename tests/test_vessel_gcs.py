@@ -30,6 +30,9 @@ from bob_autonomy.safety import inside_polygon, limit_to_fence, return_inside
 from bob_autonomy.supervisor import Supervisor, behavior_params
 from bob_autonomy.vessel import Vessel, VesselConfig
 
+# Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
+pytestmark = pytest.mark.xdist_group("realtime")
+
 FRAME = LocalFrame(*ORIGIN)
 BOX = np.array([[-10.0, -10.0], [10.0, -10.0], [10.0, 10.0], [-10.0, 10.0]])
 
