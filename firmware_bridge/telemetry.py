@@ -36,6 +36,10 @@ def _ms(t_s: float) -> int:
     return max(0, int(t_s * 1000)) & 0xFFFFFFFF
 
 
+def _cm_s(v_mps: float) -> int:
+    return int(max(-32767, min(32767, round(v_mps * 100.0))))
+
+
 def _int16(value: float) -> int:
     return int(max(-INT16_MAX, min(INT16_MAX, round(value))))
 
@@ -89,6 +93,40 @@ class TelemetryEncoder:
             satellites,
         )
         return self.encoder.pack(message)
+
+    def global_position_int(
+        self, t_s: float, lat_deg: float, lon_deg: float, velocity_mps: Sequence[float] | None = None
+    ) -> bytes:
+        """GLOBAL_POSITION_INT (what ground stations show as the position): lat/lon degE7, altitude 0, ground
+        velocity north/east cm/s (0 when unknown), heading unknown (UINT16_MAX)."""
+        east, north = 0.0, 0.0
+        if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
+            east, north = float(velocity_mps[0]), float(velocity_mps[1])
+        message = self.mav.global_position_int_encode(
+            _ms(t_s), round(lat_deg * 1e7), round(lon_deg * 1e7), 0, 0, _cm_s(north), _cm_s(east), 0, UINT16_MAX
+        )
+        return self.encoder.pack(message)
+
+    def distance_sensor(
+        self, t_s: float, sensor_id: int, distance_m: float, max_m: float, min_m: float = 0.02
+    ) -> bytes:
+        """DISTANCE_SENSOR of range finder `sensor_id` (cm); no echo (NaN) is sent as max + 1 cm, as ArduPilot
+        reports out of range. Orientation is MAV_SENSOR_ROTATION_CUSTOM: the sensor's bearing is the receiver's
+        configuration (docs/mavlink-mapping.md)."""
+        max_cm = round(max_m * 100.0)
+        current = max_cm + 1 if not math.isfinite(distance_m) else min(max_cm + 1, round(distance_m * 100.0))
+        message = self.mav.distance_sensor_encode(
+            _ms(t_s), round(min_m * 100.0), max_cm, current, mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,
+            int(sensor_id), mavlink.MAV_SENSOR_ROTATION_CUSTOM, 255,
+        )  # fmt: skip
+        return self.encoder.pack(message)
+
+    def light(self, t_s: float, left: float, right: float) -> bytes:
+        """The two light readings as NAMED_VALUE_FLOAT "light_l" and "light_r" (W/m^2)."""
+        ms = _ms(t_s)
+        return self.encoder.pack(self.mav.named_value_float_encode(ms, b"light_l", float(left))) + self.encoder.pack(
+            self.mav.named_value_float_encode(ms, b"light_r", float(right))
+        )
 
     def attitude(self, t_s: float, heading_rad: float, yaw_rate_radps: float = 0.0) -> bytes:
         """ATTITUDE, level: yaw from our heading, yawspeed clockwise-positive (rad/s)."""

@@ -16,6 +16,7 @@ lockstep simulator passes them in memory, the process fleet over UDP.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +30,7 @@ from firmware_bridge.commands import (
     wheels_from_rc,
 )
 from firmware_bridge.decoder import TelemetryDecoder
+from firmware_bridge.readings import SensorReadings
 from firmware_bridge.telemetry import TelemetryEncoder
 
 BUOY, EBOT = "buoy", "ebot"
@@ -157,3 +159,60 @@ class SimulatedVehicle:
         self._next_housekeeping_s = t_s + HOUSEKEEPING_PERIOD_S
         heartbeat = self.telemetry.heartbeat(MAV_TYPES[self.kind], self.armed, self.mode)
         return heartbeat + self.telemetry.sys_status(voltage_v, remaining_pct)
+
+
+def encode_readings(
+    readings: SensorReadings,
+    t_s: float,
+    vehicles: Sequence[SimulatedVehicle],
+    frames: list[bytearray],
+    rows: Sequence[int] | None = None,
+    *,
+    metres_per_tick: float = 1.0,
+    fused_position: bool = False,
+) -> None:
+    """Append to frames[row] the telemetry of each reading: SCALED_IMU, GPS_RAW_INT (and GLOBAL_POSITION_INT when
+    `fused_position`, for ground stations), ATTITUDE, WHEEL_DISTANCE (ticks * metres_per_tick). A reading's agent
+    k is vehicle rows[k] (rows None: k itself)."""
+
+    def vehicle_rows(agents):
+        return [(i, int(k) if rows is None else int(rows[k])) for i, k in enumerate(agents)]
+
+    if readings.imu is not None:
+        m = readings.imu
+        for i, row in vehicle_rows(m.agents):
+            frames[row] += vehicles[row].telemetry.scaled_imu(t_s, m.accel_body_mps2[i], m.gyro_z_radps[i])
+    if readings.gps is not None:
+        g = readings.gps
+        for i, row in vehicle_rows(g.agents):
+            velocity = None if g.velocity_mps is None else g.velocity_mps[i]
+            telemetry = vehicles[row].telemetry
+            frames[row] += telemetry.gps_raw_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
+            if fused_position:
+                frames[row] += telemetry.global_position_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
+    if readings.compass is not None:
+        c = readings.compass
+        for i, row in vehicle_rows(c.agents):
+            frames[row] += vehicles[row].telemetry.attitude(t_s, c.heading_rad[i])
+    if readings.encoders is not None:
+        e = readings.encoders
+        for i, row in vehicle_rows(e.agents):
+            frames[row] += vehicles[row].telemetry.wheel_distance(t_s, e.ticks[i] * metres_per_tick)
+
+
+def encode_senses(
+    t_s: float,
+    vehicles: Sequence[SimulatedVehicle],
+    frames: list[bytearray],
+    rows: Sequence[int],
+    ranges_m: np.ndarray,
+    light: np.ndarray,
+    max_range_m: float,
+) -> None:
+    """Append to frames[rows[k]] eBot k's range finders as DISTANCE_SENSOR (id = sonar index) and its two light
+    readings as NAMED_VALUE_FLOAT: ranges_m (k, sonars) m, NaN = no echo; light (k, 2) W/m^2."""
+    for k, row in enumerate(rows):
+        telemetry = vehicles[row].telemetry
+        for sonar, distance in enumerate(ranges_m[k]):
+            frames[row] += telemetry.distance_sensor(t_s, sonar, float(distance), max_range_m)
+        frames[row] += telemetry.light(t_s, float(light[k, 0]), float(light[k, 1]))

@@ -25,7 +25,6 @@ mavlink_connection(path)` and `mavlogdump.py` read it.
 
 from __future__ import annotations
 
-import math
 import select
 import socket
 import time
@@ -35,7 +34,7 @@ import numpy as np
 
 from firmware_bridge.readings import SensorReadings
 from firmware_bridge.tlog import TlogWriter, split_frames
-from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle
+from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle, encode_readings
 
 DEFAULT_BASE_PORT = 5760  # ArduPilot SITL instance 0 (SERIAL0)
 PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
@@ -194,31 +193,15 @@ class VehicleServer:
         """
         frames = [bytearray(e.vehicle.housekeeping(t_s)) for e in self.endpoints]
         for kind, r in readings.items():
-            rows = self.rows[kind]
-            if r.imu is not None:
-                m = r.imu
-                for i, k in enumerate(m.agents):
-                    row = rows[k]
-                    frames[row] += self.vehicles[row].telemetry.scaled_imu(t_s, m.accel_body_mps2[i], m.gyro_z_radps[i])
-            if r.gps is not None:
-                g = r.gps
-                for i, k in enumerate(g.agents):
-                    row = rows[k]
-                    velocity = None if g.velocity_mps is None else g.velocity_mps[i]
-                    telemetry = self.vehicles[row].telemetry
-                    frames[row] += telemetry.gps_raw_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
-                    frames[row] += global_position_int(telemetry, t_s, g.lat_deg[i], g.lon_deg[i], velocity)
-            if r.compass is not None:
-                c = r.compass
-                for i, k in enumerate(c.agents):
-                    row = rows[k]
-                    frames[row] += self.vehicles[row].telemetry.attitude(t_s, c.heading_rad[i])
-            if r.encoders is not None:
-                e = r.encoders
-                for i, k in enumerate(e.agents):
-                    row = rows[k]
-                    travel = e.ticks[i] * self.metres_per_tick
-                    frames[row] += self.vehicles[row].telemetry.wheel_distance(t_s, travel)
+            encode_readings(
+                r,
+                t_s,
+                self.vehicles,
+                frames,
+                self.rows[kind],
+                metres_per_tick=self.metres_per_tick,
+                fused_position=True,
+            )
         return [bytes(f) for f in frames]
 
     def send_telemetry(self, t_s: float, readings: dict[str, SensorReadings]) -> None:
@@ -242,33 +225,6 @@ class VehicleServer:
             e.close()
 
 
-def global_position_int(
-    telemetry, t_s: float, lat_deg: float, lon_deg: float, velocity_mps: Sequence[float] | None
-) -> bytes:
-    """GLOBAL_POSITION_INT (what ground stations show as the position): lat/lon degE7, altitude 0, ground
-    velocity north/east cm/s (0 when unknown), heading unknown (UINT16_MAX). `telemetry`: the vehicle's
-    `firmware_bridge.telemetry.TelemetryEncoder`."""
-    east, north = (0.0, 0.0)
-    if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
-        east, north = float(velocity_mps[0]), float(velocity_mps[1])
-    message = telemetry.mav.global_position_int_encode(
-        max(0, int(t_s * 1000)) & 0xFFFFFFFF,
-        round(lat_deg * 1e7),
-        round(lon_deg * 1e7),
-        0,
-        0,
-        _cm_s(north),
-        _cm_s(east),
-        0,
-        _UINT16_MAX,
-    )
-    return telemetry.encoder.pack(message)
-
-
-def _cm_s(v_mps: float) -> int:
-    return int(max(-32767, min(32767, round(v_mps * 100.0))))
-
-
 __all__ = [
     "DEFAULT_BASE_PORT",
     "PEER_TIMEOUT_S",
@@ -276,7 +232,6 @@ __all__ = [
     "TlogWriter",
     "VehicleEndpoint",
     "VehicleServer",
-    "global_position_int",
     "split_frames",
     "vehicle_port",
 ]

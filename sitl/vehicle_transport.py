@@ -18,7 +18,7 @@ import numpy as np
 
 from bob_autonomy.vehicle_link import VehicleLink
 from firmware_bridge.readings import SensorReadings
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.mavlink_vehicle import SimulatedVehicle, encode_readings
 
 FloatArray = np.ndarray
 
@@ -75,29 +75,12 @@ class MavlinkTransport:
     def up(self, readings: SensorReadings, t_s: float) -> list[object]:
         """Encode each vehicle's new readings (and its 1 Hz housekeeping) as telemetry; returns the readings the
         vessels decode from it."""
-        frames: dict[int, bytearray] = defaultdict(bytearray)
-        for k, vehicle in enumerate(self.vehicles):
-            frames[k] += vehicle.housekeeping(t_s)
-        if readings.imu is not None:
-            m = readings.imu
-            for i, k in enumerate(m.agents):
-                frames[k] += self.vehicles[k].telemetry.scaled_imu(t_s, m.accel_body_mps2[i], m.gyro_z_radps[i])
-        if readings.gps is not None:
-            g = readings.gps
-            for i, k in enumerate(g.agents):
-                velocity = None if g.velocity_mps is None else g.velocity_mps[i]
-                frames[k] += self.vehicles[k].telemetry.gps_raw_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
-        if readings.compass is not None:
-            c = readings.compass
-            for i, k in enumerate(c.agents):
-                frames[k] += self.vehicles[k].telemetry.attitude(t_s, c.heading_rad[i])
-        if readings.encoders is not None:
-            e = readings.encoders
-            for i, k in enumerate(e.agents):
-                frames[k] += self.vehicles[k].telemetry.wheel_distance(t_s, e.ticks[i] * self.metres_per_tick)
+        frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
+        encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick)
         decoded: list[object] = []
-        for k in sorted(frames):
-            decoded += self.links[k].receive(bytes(frames[k]))
+        for link, data in zip(self.links, frames, strict=True):
+            if data:
+                decoded += link.receive(bytes(data))
         return decoded
 
     def counters(self) -> dict[str, int]:
