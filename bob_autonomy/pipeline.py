@@ -20,6 +20,7 @@ from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.mpc import BuoyMpc, DiffDriveMpc
 from bob_autonomy.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
 from bob_autonomy.velocity_control import BuoyVelocityController, DiffDriveController
+from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
 FloatArray = NDArray[np.float64]
@@ -164,7 +165,7 @@ class EbotPipeline:
         for reading in _flatten(readings):
             if isinstance(reading, EncoderReading):
                 self.estimator.update_encoders(reading.agents, reading.t_s, reading.ticks)
-            elif hasattr(reading, "distance_m"):  # firmware_bridge.decoder.WheelDistance (metres)
+            elif isinstance(reading, WheelDistance):  # metres, as ArduPilot reports wheel travel
                 ticks = np.rint(np.asarray(reading.distance_m) / self.metres_per_tick).astype(np.int64)
                 self.estimator.update_encoders(reading.agents, reading.t_s, ticks)
             elif isinstance(reading, CompassReading):

@@ -36,6 +36,7 @@ from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import LinkMesh
 from bob_autonomy.params import ParameterStore
 from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.senses import EbotSenses
 from bob_autonomy.supervisor import Supervisor, behavior_params
 from bob_autonomy.vehicle_link import BUOY, EBOT, VehicleLink
 from bob_autonomy.velocity_control import BuoyModel
@@ -52,11 +53,13 @@ class VehicleError(RuntimeError):
 
 @dataclass(frozen=True)
 class EbotConfig:
-    """What the autonomy knows of an eBot: wheel base m, top wheel speed m/s, encoder travel per tick m."""
+    """What the autonomy knows of an eBot: wheel base m, top wheel speed m/s, encoder travel per tick m, and the
+    bearing of each sonar from the forward axis (deg, counter-clockwise)."""
 
     wheel_base_m: float = 0.1
     max_wheel_speed_mps: float = 0.2
     metres_per_tick: float = 2.0 * math.pi * 0.03 / 360
+    sonar_angles_deg: tuple[float, ...] = (0.0, 60.0, 120.0, 180.0, -120.0, -60.0)  # by DISTANCE_SENSOR id
 
 
 @dataclass(frozen=True)
@@ -120,10 +123,13 @@ class SilentMesh:
 
 
 class MavlinkBody:
-    """The Body of an agent whose vehicle is reached over MAVLink: pose from the vessel's own estimator."""
+    """The Body of an agent whose vehicle is reached over MAVLink: pose from the vessel's own estimator, senses
+    from the decoded range and light telemetry (eBots; buoys sense neither)."""
 
-    def __init__(self, pipeline: BuoyPipeline | EbotPipeline, clock: ScaledWallClock) -> None:
-        self.pipeline, self.clock = pipeline, clock
+    def __init__(
+        self, pipeline: BuoyPipeline | EbotPipeline, clock: ScaledWallClock, sensing: EbotSenses | None = None
+    ) -> None:
+        self.pipeline, self.clock, self.sensing = pipeline, clock, sensing
         self.wish_velocity = np.zeros(2)
         self.wish_heading = math.nan
 
@@ -132,8 +138,10 @@ class MavlinkBody:
         return Pose(*e.position[0], float(e.heading[0]), *e.velocity[0])
 
     def senses(self) -> Senses:
-        # Range finders and light sensors are not carried over MAVLink yet: NaN, which behaviours read as "none".
-        return Senses(obstacles=np.full((1, 6, 2), np.nan), light=np.full((1, 2), np.nan))
+        if self.sensing is None:
+            return Senses(obstacles=np.full((1, 0, 2), np.nan), light=np.full((1, 2), np.nan))
+        now = self.clock.now()
+        return self.sensing.senses(float(self.pipeline.estimate(now).heading[0]), now)
 
     def command(self, velocity_mps: np.ndarray, heading_rad: float) -> None:
         self.wish_velocity = np.nan_to_num(np.asarray(velocity_mps, dtype=float).reshape(2))
@@ -148,6 +156,7 @@ class VesselStats:
     commands: int = 0
     readings: int = 0
     link_errors: int = 0
+    reading_errors: int = 0
     step_errors: int = 0
     silent_alarms: int = 0
     compute_latency_s: list[float] = field(default_factory=list)
@@ -224,7 +233,8 @@ class Vessel:
             else SilentMesh()
         )
         self.network = network
-        self.body = MavlinkBody(self.pipeline, self.clock)
+        self.sensing = EbotSenses(np.radians(c.ebot.sonar_angles_deg)) if c.kind == EBOT else None
+        self.body = MavlinkBody(self.pipeline, self.clock, self.sensing)
         self.agent = Agent(c.agent_id, self.body, network, self.supervisor.behavior(), self.clock, c.neighbor_expiry_s)
         self.stats = VesselStats()
         self._stop = threading.Event()
@@ -262,7 +272,13 @@ class Vessel:
             if readings:
                 self._last_reading_wall_s = time.perf_counter()
                 self.stats.readings += len(readings)
-                self.pipeline.feed(readings)
+                try:
+                    self.pipeline.feed(readings)
+                    if self.sensing is not None:
+                        self.sensing.feed(readings)
+                except Exception:  # one bad reading must not stop the vessel: count it, log it, go on
+                    self.stats.reading_errors += 1
+                    logger.exception("readings could not be fused (%d so far)", self.stats.reading_errors)
 
     def serve_gcs(self) -> None:
         """Exchange what is due with the ground station(s): read their datagrams, answer, pass on autopilot

@@ -29,7 +29,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from firmware_bridge.readings import CompassReading, FloatArray, GpsFix, ImuReading, IntArray
+from firmware_bridge.readings import (
+    CompassReading,
+    FloatArray,
+    GpsFix,
+    ImuReading,
+    IntArray,
+    LightReading,
+    RangeReading,
+)
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 UINT16_MAX = 65535
@@ -89,7 +97,18 @@ class CommandAck:
     result: int
 
 
-Reading = GpsFix | CompassReading | ImuReading | WheelDistance | Battery | Heartbeat | CommandAck
+Reading = (
+    GpsFix
+    | CompassReading
+    | ImuReading
+    | WheelDistance
+    | RangeReading
+    | LightReading
+    | Battery
+    | Heartbeat
+    | CommandAck
+)
+LIGHT_NAMES = {"light_l": 0, "light_r": 1}  # NAMED_VALUE_FLOAT names of the eBot's left and right light sensors
 
 
 @dataclass
@@ -316,6 +335,20 @@ class TelemetryDecoder:
         agents, times = self._rows(t_s)
         return WheelDistance(agents, times, np.array([[float(msg.distance[0]), float(msg.distance[1])]]))
 
+    def _distance_sensor(self, msg, t_s: float) -> RangeReading:
+        beyond = msg.current_distance > msg.max_distance or msg.current_distance < msg.min_distance
+        distance = math.nan if beyond else msg.current_distance / 100.0
+        agents, times = self._rows(t_s)
+        return RangeReading(agents, times, np.array([msg.id], dtype=np.intp), np.array([distance]))
+
+    def _named_value_float(self, msg, t_s: float) -> LightReading | None:
+        name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else str(msg.name)
+        side = LIGHT_NAMES.get(name.rstrip("\x00"))
+        if side is None or not math.isfinite(msg.value):
+            return None
+        agents, times = self._rows(t_s)
+        return LightReading(agents, times, np.array([side], dtype=np.intp), np.array([float(msg.value)]))
+
     def _sys_status(self, msg, t_s: float) -> Battery:
         voltage = math.nan if msg.voltage_battery == UINT16_MAX else msg.voltage_battery / 1000.0
         remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
@@ -354,6 +387,8 @@ _CONVERTERS: dict[str, Callable[[TelemetryDecoder, object, float], Reading | Non
     "SCALED_IMU": TelemetryDecoder._imu,
     "RAW_IMU": TelemetryDecoder._imu,  # ArduPilot sends RAW_IMU scaled like SCALED_IMU (mG, mrad/s)
     "WHEEL_DISTANCE": TelemetryDecoder._wheel_distance,
+    "DISTANCE_SENSOR": TelemetryDecoder._distance_sensor,
+    "NAMED_VALUE_FLOAT": TelemetryDecoder._named_value_float,
     "SYS_STATUS": TelemetryDecoder._sys_status,
     "BATTERY_STATUS": TelemetryDecoder._battery_status,
     "HEARTBEAT": TelemetryDecoder._heartbeat,

@@ -66,3 +66,25 @@ class SensorReadings:
     compass: CompassReading | None = None
     imu: ImuReading | None = None
     encoders: EncoderReading | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class RangeReading:
+    """Range finders: agent indices (k,), reception times t_s (k,), sensor ids (k,) and distance_m (k,) in
+    metres, NaN when nothing is within range (DISTANCE_SENSOR beyond its max_distance)."""
+
+    agents: IntArray
+    t_s: FloatArray
+    sensor: IntArray
+    distance_m: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class LightReading:
+    """Light sensors: agent indices (k,), reception times t_s (k,), side (k,) 0 left / 1 right, intensity (k,)
+    W/m^2 (NAMED_VALUE_FLOAT "light_l" / "light_r")."""
+
+    agents: IntArray
+    t_s: FloatArray
+    side: IntArray
+    intensity: FloatArray

@@ -446,7 +446,8 @@ class ProcessFleet:
             b.step(actuators[b.buoys], actuators[b.ebots], self.dt, self.world)
         else:
             b.hold(self.dt)
-        self.server.send_telemetry(b.t, b.sense())
+        senses = b.ebot_senses(self.world) if b.ebots.size else None
+        self.server.send_telemetry(b.t, b.sense(), senses)
         self._k += 1
 
     def _tick(self) -> None:

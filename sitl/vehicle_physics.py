@@ -23,10 +23,20 @@ from numpy.typing import NDArray
 
 from bob_autonomy.geodesy import LocalFrame
 from firmware_bridge.readings import SensorReadings
-from sitl.bodies import BUOY, EBOT
+from sitl.bodies import BUOY, EBOT, KinematicBodies
 from sitl.dynamics import BuoyDynamics, BuoyParams, DiffDriveDynamics, DiffDriveParams
 from sitl.environment import Environment
-from sitl.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec, SensorSuite
+from sitl.sensors import (
+    CompassSpec,
+    EncoderSpec,
+    GpsSpec,
+    ImuSpec,
+    LightSpec,
+    RangeSpec,
+    SensorSuite,
+    noisy_light,
+    noisy_ranges,
+)
 from sitl.world import FloatArray, World
 
 PRE_ROLL_S = 2.0  # sensors and estimators run this long before t = 0, as a vessel powered up before the mission
@@ -172,6 +182,16 @@ class VehiclePhysics:
                 d.wheel_travel_m,
             )
         return out
+
+    def ebot_senses(self, world: World) -> tuple[FloatArray, FloatArray]:
+        """The eBots' noisy sonar ranges (n_ebots, 6) m (NaN: no echo) and light readings (n_ebots, 2) W/m^2,
+        from the same geometry and noise models as the lockstep bodies (sitl.bodies, sitl.sensors)."""
+        e = self.ebots
+        view = KinematicBodies(self.kind, self.position, self.heading)
+        view.active[:] = self.active
+        offsets = noisy_ranges(view.range_finders(e, world), self.rng, self.range_spec)
+        light = noisy_light(view.light_sensors(e, world), self.rng, self.light_spec)
+        return np.hypot(offsets[..., 0], offsets[..., 1]), light
 
     def stop(self, rows: NDArray[np.intp]) -> None:
         """Deactivate vehicles (fleet rows): they stop and no longer move (a removed vessel)."""

@@ -34,10 +34,13 @@ import numpy as np
 
 from firmware_bridge.readings import SensorReadings
 from firmware_bridge.tlog import TlogWriter, split_frames
-from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle, encode_readings
+from sitl.bodies import BODY_SPECS
+from sitl.bodies import EBOT as EBOT_KIND
+from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle, encode_readings, encode_senses
 
 DEFAULT_BASE_PORT = 5760  # ArduPilot SITL instance 0 (SERIAL0)
 PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
+EBOT_SONAR_RANGE_M = BODY_SPECS[EBOT_KIND].range_max_m
 PEER_TIMEOUT_S = 5.0  # wall seconds: a peer that has sent nothing for this long no longer gets telemetry
 _UINT16_MAX = 65535
 
@@ -186,7 +189,9 @@ class VehicleServer:
         """(n,) bool: which vehicles are armed (what their HEARTBEAT says)."""
         return np.array([e.vehicle.armed for e in self.endpoints], dtype=bool)
 
-    def telemetry(self, t_s: float, readings: dict[str, SensorReadings]) -> list[bytes]:
+    def telemetry(
+        self, t_s: float, readings: dict[str, SensorReadings], ebot_senses: tuple | None = None
+    ) -> list[bytes]:
         """Each vehicle's telemetry frames for this step (housekeeping when due, then its sensors' readings).
 
         readings: {"buoy": ..., "ebot": ...} as `VehiclePhysics.sense` returns (agents index within a kind).
@@ -202,11 +207,15 @@ class VehicleServer:
                 metres_per_tick=self.metres_per_tick,
                 fused_position=True,
             )
+        if ebot_senses is not None and self.rows[EBOT].size:
+            ranges, light = ebot_senses
+            encode_senses(t_s, self.vehicles, frames, self.rows[EBOT], ranges, light, EBOT_SONAR_RANGE_M)
         return [bytes(f) for f in frames]
 
-    def send_telemetry(self, t_s: float, readings: dict[str, SensorReadings]) -> None:
-        """Encode this step's telemetry and send each vehicle's to its live peers."""
-        for endpoint, data in zip(self.endpoints, self.telemetry(t_s, readings), strict=True):
+    def send_telemetry(self, t_s: float, readings: dict[str, SensorReadings], ebot_senses: tuple | None = None) -> None:
+        """Encode this step's telemetry (and the eBots' (ranges, light), when given) and send each vehicle's to its
+        live peers."""
+        for endpoint, data in zip(self.endpoints, self.telemetry(t_s, readings, ebot_senses), strict=True):
             endpoint.send(data)
 
     def counters(self) -> dict[str, int]:
