@@ -19,7 +19,8 @@ from numpy.typing import NDArray
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
 from bob_autonomy.simple_estimator import PoseEstimate
-from sitl.bodies import KinematicBodies
+from sitl.bodies import BODY_SPECS, EBOT_SONAR_ANGLES_RAD, KinematicBodies
+from sitl.bodies import EBOT as EBOT_KIND
 from sitl.environment import Environment
 from sitl.mavlink_vehicle import BUOY, EBOT
 from sitl.sensors import noisy_light, noisy_ranges
@@ -88,6 +89,7 @@ class PhysicalBodies(KinematicBodies):
             self.position[e], self.heading[e], wheel_base, self.ebot_params.max_wheel_speed_mps, per_tick, **options
         )
         self.link = link
+        self._mavlink_light: tuple | None = None  # (t, rows, light) decoded with this step's range finders
         if link == "mavlink":
 
             def clock() -> float:  # the vessels stamp readings with the simulated time
@@ -158,11 +160,27 @@ class PhysicalBodies(KinematicBodies):
             self.ebot_vessels.feed(self.ebot_link.up(readings["ebot"], self.t))
 
     def range_finders(self, rows: NDArray[np.int_], world: World) -> FloatArray:
-        """The sonar echoes of the kinematic model, with range noise."""
-        return noisy_ranges(super().range_finders(rows, world), self.rng, self.range_spec)
+        """The sonar echoes of the kinematic model, with range noise. Over the MAVLink link they travel as
+        DISTANCE_SENSOR (with the light readings) and each vessel places them with its own heading estimate."""
+        offsets = noisy_ranges(super().range_finders(rows, world), self.rng, self.range_spec)
+        if self.link != "mavlink":
+            return offsets
+        light = noisy_light(super().light_sensors(rows, world), self.rng, self.light_spec)
+        index = np.searchsorted(self.ebots, rows)
+        heading = self.ebot_vessels.estimate(self.t).heading[index]
+        ranges = np.hypot(offsets[..., 0], offsets[..., 1])
+        obstacles, seen_light = self.ebot_link.senses(
+            index, ranges, light, heading, self.t, EBOT_SONAR_ANGLES_RAD, BODY_SPECS[EBOT_KIND].range_max_m
+        )
+        self._mavlink_light = (self.t, rows.copy(), seen_light)
+        return obstacles
 
     def light_sensors(self, rows: NDArray[np.int_], world: World) -> FloatArray:
-        """The light readings of the kinematic model, with noise."""
+        """The light readings of the kinematic model, with noise (over MAVLink: as the vessels decoded them
+        with this step's range finders)."""
+        cached = self._mavlink_light
+        if self.link == "mavlink" and cached is not None and cached[0] == self.t and np.array_equal(cached[1], rows):
+            return cached[2]
         return noisy_light(super().light_sensors(rows, world), self.rng, self.light_spec)
 
     def environment_at(self) -> tuple[FloatArray, FloatArray]:

@@ -16,9 +16,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from bob_autonomy.senses import EbotSenses
 from bob_autonomy.vehicle_link import VehicleLink
 from firmware_bridge.readings import SensorReadings
-from sitl.mavlink_vehicle import SimulatedVehicle, encode_readings
+from sitl.mavlink_vehicle import SimulatedVehicle, encode_readings, encode_senses
 
 FloatArray = np.ndarray
 
@@ -61,6 +62,7 @@ class MavlinkTransport:
             for k in range(n)
         ]
         self.links = [VehicleLink(first_system_id + k, kind, max_actuator, clock, agent=k) for k in range(n)]
+        self.sensing: list[EbotSenses] | None = None  # each eBot vessel's range and light readings
 
     def down(self, commands: FloatArray, t_s: float) -> FloatArray:
         """Encode each vessel's command, let its vehicle decode it; returns what the vehicles apply (n, 2)."""
@@ -82,6 +84,31 @@ class MavlinkTransport:
             if data:
                 decoded += link.receive(bytes(data))
         return decoded
+
+    def senses(
+        self,
+        agents: np.ndarray,
+        ranges_m: FloatArray,
+        light: FloatArray,
+        heading_rad: FloatArray,
+        t_s: float,
+        sonar_angles_rad: FloatArray,
+        max_range_m: float,
+    ) -> tuple[FloatArray, FloatArray]:
+        """eBots `agents` (this transport's vehicle indices) send their sonar ranges (k, sonars) m and light
+        readings (k, 2) as telemetry; each vessel turns what it decodes into its Senses with its own heading
+        estimate (k,) rad. Returns obstacles (k, sonars, 2) m (world-aligned offsets) and light (k, 2)."""
+        if self.sensing is None:
+            self.sensing = [EbotSenses(sonar_angles_rad) for _ in self.vehicles]
+        frames = [bytearray() for _ in self.vehicles]
+        encode_senses(t_s, self.vehicles, frames, agents, ranges_m, light, max_range_m)
+        obstacles = np.full((len(agents), len(sonar_angles_rad), 2), np.nan)
+        seen_light = np.full((len(agents), 2), np.nan)
+        for j, k in enumerate(agents):
+            self.sensing[k].feed(self.links[k].receive(bytes(frames[k])))
+            s = self.sensing[k].senses(float(heading_rad[j]), t_s)
+            obstacles[j], seen_light[j] = s.obstacles[0], s.light[0]
+        return obstacles, seen_light
 
     def counters(self) -> dict[str, int]:
         """Totals over the vehicles and the vessels' decoders."""

@@ -84,3 +84,17 @@ def test_the_ebot_estimator_ignores_range_and_light_readings() -> None:
     pipeline = EbotPipeline(np.zeros((1, 2)), np.zeros(1), 0.1, 0.2, 0.001, estimator="ekf", controller="simple")
     pipeline.feed(readings)  # wheel travel is fused; a range reading is not mistaken for it
     assert pipeline.ignored == 3
+
+
+def test_lockstep_ebots_sense_through_mavlink() -> None:
+    from sitl.runner import simulate
+    from sitl.scenario import load_scenario
+
+    scenario = load_scenario("perimeter-defense").with_overrides(duration_s=5.0, fidelity="physics", link="mavlink")
+    fleet = simulate(scenario).fleet
+    transport = fleet.bodies.ebot_link
+    for link in transport.links:
+        assert link.decoder.counters.by_type["DISTANCE_SENSOR"] >= 6 * 50  # 6 sonars each step
+        assert link.decoder.counters.by_type["NAMED_VALUE_FLOAT"] >= 2 * 50
+    # In the room's corner where they start, every robot hears at least one echo (walls or a neighbour).
+    assert all(np.isfinite(s.ranges_m).any() for s in transport.sensing)
