@@ -15,11 +15,11 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.ekf import BuoyEkfBank, EbotEkfBank
+from bob_autonomy.ekf import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.mpc import BuoyMpc, DiffDriveMpc
 from bob_autonomy.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
-from bob_autonomy.velocity_control import BuoyVelocityController, DiffDriveController
+from bob_autonomy.velocity_control import BuoyModel, BuoyVelocityController, DiffDriveController
 from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
@@ -56,17 +56,55 @@ class BuoyPipeline:
         controller: str = "mpc",
         dt_s: float = 0.1,
         mpc_time_budget_s: float = 0.02,
+        model: BuoyModel | None = None,
     ) -> None:
         _check_choice("estimator", estimator, ESTIMATORS)
         _check_choice("controller", controller, CONTROLLERS)
         self.n, self.frame = n, frame
+        self.model = BuoyModel() if model is None else model
         self.max_thrust_n = np.broadcast_to(np.asarray(max_thrust_n, dtype=float), (n,)).copy()
         self.use_ekf, self.use_mpc = estimator == "ekf", controller == "mpc"
-        self.estimator = BuoyEkfBank(n) if self.use_ekf else AlphaBetaBuoyEstimator(n)
-        self.simple = BuoyVelocityController()
-        self.mpcs = [BuoyMpc(dt_s=dt_s, time_budget_s=mpc_time_budget_s) for _ in range(n)] if self.use_mpc else []
+        self.estimator = self._new_estimator()
+        self.simple = BuoyVelocityController(model=self.model)
+        self.mpcs = (
+            [BuoyMpc(model=self.model, dt_s=dt_s, time_budget_s=mpc_time_budget_s) for _ in range(n)]
+            if self.use_mpc
+            else []
+        )
         self.thrust_world_n = np.zeros((n, 2))  # last command, world frame (the EKF's known input)
         self.ignored = 0  # readings of kinds a buoy does not use (wheel travel, ...)
+        self.last_fix_xy = np.full((n, 2), np.nan)  # the newest GPS fix of each vessel (local frame, m) and its time
+        self.last_fix_t = np.full(n, -np.inf)
+        self.resets = 0
+
+    def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
+        if self.use_ekf:
+            return BuoyEkfBank(self.n, params=BuoyEkfParams(model=self.model))
+        return AlphaBetaBuoyEstimator(self.n)
+
+    def diverged(self, t_s: float, *, distance_m: float = 100.0, fix_age_s: float = 5.0) -> NDArray[np.bool_]:
+        """(n,) whether each estimate has left the ground: not finite, or more than `distance_m` (plus what the
+        vessel could travel at twice the model's top speed since the fix) from a GPS fix younger than `fix_age_s`."""
+        e = self.estimate(t_s)
+        bad = ~np.isfinite(e.position).all(axis=1) | ~np.isfinite(e.velocity).all(axis=1)
+        age = t_s - self.last_fix_t
+        fresh = age <= fix_age_s
+        with np.errstate(invalid="ignore"):
+            gap = np.hypot(*(e.position - self.last_fix_xy).T)
+            top_speed = self.model_top_speed_mps()
+            bad |= fresh & ~(gap <= distance_m + 2.0 * top_speed * np.maximum(age, 0.0))
+        return bad
+
+    def model_top_speed_mps(self) -> float:
+        """Speed at which the model's drag equals full thrust, m/s."""
+        m = self.model
+        a, b, c = m.quadratic_drag_n_per_mps2, m.linear_drag_n_per_mps, -m.max_thrust_n
+        return float((-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)) if a > 0 else float(-c / b)
+
+    def reset(self) -> None:
+        """Start the estimator afresh (the next fixes set it again); for a vessel whose filter has diverged."""
+        self.estimator = self._new_estimator()
+        self.resets += 1
 
     @property
     def mpc_fallbacks(self) -> int:
@@ -83,6 +121,8 @@ class BuoyPipeline:
             elif isinstance(reading, GpsFix):
                 x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
                 xy = np.column_stack((x, y))
+                self.last_fix_xy[reading.agents] = xy
+                self.last_fix_t[reading.agents] = reading.t_s
                 self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps)
             elif isinstance(reading, CompassReading):
                 _update_compass(self.estimator, reading, self.use_ekf)

@@ -10,6 +10,7 @@ wheels scaled together to their speed limit. Commands never exceed the limits.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +30,24 @@ class BuoyModel:
     linear_drag_n_per_mps: float = 5.0
     quadratic_drag_n_per_mps2: float = 40.0
     max_thrust_n: float = 45.0
+
+    @classmethod
+    def for_top_speed(cls, top_speed_mps: float) -> BuoyModel:
+        """The nominal model rescaled to reach `top_speed_mps` at full thrust, the split between linear and
+        quadratic drag at top speed kept: drag(v) = T (a v / V + b (v / V)^2), a = 5/45, b = 40/45, V the top
+        speed. For a vehicle that only says how fast full throttle goes (ArduPilot's SPEED_MAX)."""
+        v = float(top_speed_mps)
+        if not (math.isfinite(v) and 0.05 <= v <= 50.0):
+            raise ValueError(f"top speed must be 0.05..50 m/s, got {top_speed_mps!r}")
+        base = cls()
+        linear_share = base.linear_drag_n_per_mps / base.max_thrust_n  # at the nominal 1 m/s top speed
+        quadratic_share = base.quadratic_drag_n_per_mps2 / base.max_thrust_n
+        return cls(
+            mass_kg=base.mass_kg,
+            linear_drag_n_per_mps=base.max_thrust_n * linear_share / v,
+            quadratic_drag_n_per_mps2=base.max_thrust_n * quadratic_share / v**2,
+            max_thrust_n=base.max_thrust_n,
+        )
 
 
 def rotate_to_body(vectors: FloatArray, heading_rad: FloatArray) -> FloatArray:

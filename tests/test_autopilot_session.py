@@ -1,0 +1,274 @@
+"""The autonomy's side of an ArduPilot autopilot: RC scaling, the profile read from parameters, requests and the
+start-up, checked on real encoded bytes (pymavlink's parser on the other end)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from bob_autonomy.autopilot import BUOY, EBOT, AutopilotProfile, AutopilotSession
+from bob_autonomy.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
+from bob_autonomy.velocity_control import BuoyModel
+from firmware_bridge.commands import Encoder
+from firmware_bridge.rc_channels import RcChannelRange, RcMap
+
+
+def _parse(data: bytes) -> list:
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    return [m for m in parser.parse_buffer(data) or []]
+
+
+# -- RC scaling ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "calibration",
+    [
+        RcChannelRange(),
+        RcChannelRange(1000, 1500, 2000, 30),  # SITL's rover.parm
+        RcChannelRange(982, 1494, 2006, 10, reversed=True),
+        RcChannelRange(1100, 1520, 1900, 0),
+    ],
+)
+def test_pwm_for_is_the_inverse_of_ardupilot_scaling(calibration: RcChannelRange) -> None:
+    for u in np.linspace(-1.0, 1.0, 401):
+        pwm = calibration.pwm_for(u)
+        assert calibration.min_us <= pwm <= calibration.max_us
+        # one microsecond is the resolution: the read-back is within one step of the wish
+        step = 1.0 / min(calibration.max_us - calibration.trim_us, calibration.trim_us - calibration.min_us) * 1.2
+        assert calibration.value_of(pwm) == pytest.approx(u, abs=step + 0.02)
+    assert calibration.pwm_for(0.0) == calibration.trim_us
+    assert calibration.pwm_for(math.nan) == calibration.trim_us
+    assert calibration.value_of(calibration.trim_us) == 0.0
+
+
+def test_full_throttle_is_full_scale_on_a_1000_2000_channel() -> None:
+    # Issue #18: a fixed 1900 us was read by SITL's 1000-2000 calibration as 78 % throttle.
+    sitl = RcChannelRange(1000, 1500, 2000, 30)
+    assert sitl.pwm_for(1.0) == 2000 and sitl.value_of(2000) == 1.0
+    assert sitl.value_of(1900) == pytest.approx((1900 - 1530) / (2000 - 1530))
+    assert sitl.pwm_for(0.01) > 1530  # just past the dead zone: a small wish is not swallowed by it
+
+
+def test_rc_map_problems_name_the_parameter() -> None:
+    assert RcMap().problem() is None
+    assert "share a channel" in RcMap(1, 1, 4).problem()
+    assert "channels 1-8" in RcMap(1, 3, 12).problem()
+    bad = RcMap(1, 3, 4, ((3, RcChannelRange(1500, 1500, 2000)),))
+    assert "throttle (RCMAP_THROTTLE) channel 3" in bad.problem()
+
+
+# -- the profile -------------------------------------------------------------------------------------------
+
+
+def test_a_buoy_on_a_motorboat_frame_is_refused_with_what_to_change() -> None:
+    motorboat = AutopilotProfile({"FRAME_CLASS": 2, "FRAME_TYPE": 0})
+    (problem,) = motorboat.problems(BUOY)
+    assert "cannot move sideways" in problem and "FRAME_CLASS=2 (boat)" in problem
+    assert motorboat.problems(EBOT) == []
+    assert AutopilotProfile({"FRAME_CLASS": 1, "FRAME_TYPE": 4}).problems(BUOY) == []
+
+
+def test_override_time_and_steer_type_problems_and_warnings() -> None:
+    assert any("RC_OVERRIDE_TIME is 0" in p for p in AutopilotProfile({"RC_OVERRIDE_TIME": 0}).problems(EBOT))
+    assert any("two paddles" in p for p in AutopilotProfile({"PILOT_STEER_TYPE": 1}).problems(EBOT))
+    never = AutopilotProfile({"RC_OVERRIDE_TIME": -1})
+    assert any("never lapse" in w for w in never.warnings(0.1))
+    assert AutopilotProfile({"RC_OVERRIDE_TIME": 3}).warnings(0.1) == []
+
+
+def test_gcs_id_top_speed_and_rc_map_from_parameters() -> None:
+    p = AutopilotProfile(
+        {
+            "MAV_GCS_SYSID": 250,
+            "SYSID_MYGCS": 7,
+            "CRUISE_SPEED": 2.0,
+            "CRUISE_THROTTLE": 25,
+            "RCMAP_ROLL": 2,
+            "RCMAP_THROTTLE": 1,
+            "RCMAP_YAW": 5,
+            "RC1_MIN": 1000,
+            "RC1_MAX": 2000,
+        }
+    )
+    assert p.gcs_system_id == 250  # the current name wins; SYSID_MYGCS is for older firmware
+    assert AutopilotProfile({"SYSID_MYGCS": 7}).gcs_system_id == 7
+    assert p.top_speed_mps == pytest.approx(8.0)  # CRUISE_SPEED / CRUISE_THROTTLE %
+    assert AutopilotProfile({"SPEED_MAX": 3.5, "CRUISE_SPEED": 2}).top_speed_mps == 3.5
+    m = p.rc_map
+    assert (m.steering, m.throttle, m.lateral) == (2, 1, 5)
+    assert m.range_of(1) == RcChannelRange(1000, 1500, 2000, 30)
+
+
+# -- bytes out -------------------------------------------------------------------------------------------
+
+
+def _session(kind: str = BUOY, **params: float) -> AutopilotSession:
+    s = AutopilotSession(3, kind, Encoder(), clock=lambda: 10.0)
+    s.params.update(params)
+    s.learn()
+    return s
+
+
+def test_override_goes_to_the_mapped_channels_from_the_gcs_id() -> None:
+    s = _session(MAV_GCS_SYSID=250, RCMAP_ROLL=1, RCMAP_THROTTLE=3, RCMAP_YAW=4, FRAME_CLASS=2, FRAME_TYPE=1)
+    (msg,) = _parse(s.override(0.5, 1.0, -1.0))
+    assert msg.get_type() == "RC_CHANNELS_OVERRIDE" and msg.get_srcSystem() == 250
+    assert (msg.chan1_raw, msg.chan3_raw, msg.chan4_raw) == (1715, 1900, 1100)
+    assert msg.chan2_raw == 65535  # untouched channels are left to the receiver
+
+
+def test_steering_is_flipped_in_reverse_where_ardupilot_flips_it_back() -> None:
+    flips = _session(PILOT_STEER_TYPE=0, FRAME_CLASS=1, FRAME_TYPE=0)
+    (msg,) = _parse(flips.override(0.5, -0.5))
+    assert flips.profile.rc_map.range_of(1).value_of(msg.chan1_raw) == pytest.approx(-0.5, abs=0.01)
+    keeps = _session(PILOT_STEER_TYPE=3, FRAME_CLASS=1, FRAME_TYPE=0)
+    (msg,) = _parse(keeps.override(0.5, -0.5))
+    assert keeps.profile.rc_map.range_of(1).value_of(msg.chan1_raw) == pytest.approx(0.5, abs=0.01)
+
+
+def test_lateral_stays_at_trim_on_a_frame_that_cannot_use_it() -> None:
+    s = _session(EBOT, FRAME_CLASS=1, FRAME_TYPE=0)
+    (msg,) = _parse(s.override(0.0, 0.2, 1.0))
+    assert msg.chan4_raw == 1500
+
+
+def test_stream_requests_ask_each_message_at_its_rate() -> None:
+    s = _session()
+    asked = {}
+    for msg in _parse(b"".join(s.stream_requests())):
+        assert msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and msg.target_component == 1
+        asked[int(msg.param1)] = msg.param2
+    assert asked[mavlink.MAVLINK_MSG_ID_GPS_RAW_INT] == pytest.approx(1e5)  # 10 Hz
+    assert asked[mavlink.MAVLINK_MSG_ID_SCALED_IMU] == pytest.approx(2e4)  # 50 Hz for the EKF
+    groups = {m.req_stream_id: m.req_message_rate for m in _parse(b"".join(s.stream_fallback_requests()))}
+    assert groups[mavlink.MAV_DATA_STREAM_EXTENDED_STATUS] == 10 and groups[mavlink.MAV_DATA_STREAM_RAW_SENSORS] == 50
+
+
+def test_slow_streams_are_reported_once_until_they_recover() -> None:
+    now = [0.0]
+    s = AutopilotSession(1, BUOY, Encoder(), clock=lambda: now[0])
+    s.stream_requests()
+    autopilot = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    for k in range(60):  # 1 Hz GPS for 60 s, as Rover's default SRn rates give
+        now[0] = float(k)
+        s.handle(_parse(autopilot.gps_raw_int_encode(0, 3, 0, 0, 0, 0, 0, 0, 0, 10).pack(autopilot))[0])
+    warnings = s.slow_streams(now[0])
+    assert any(w.startswith("GPS_RAW_INT arrives at 1.0 Hz") for w in warnings)
+    assert not any("GPS_RAW_INT" in w for w in s.slow_streams(now[0]))
+
+
+def test_overrides_the_autopilot_does_not_apply_are_noticed() -> None:
+    s = _session()
+    sent = _parse(s.override(0.0, 0.5, 0.0))[0]
+    autopilot = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+    applied = [sent.chan1_raw, 1500, sent.chan3_raw, sent.chan4_raw] + [1500] * 14
+    s.handle(_parse(autopilot.rc_channels_encode(0, 8, *applied, 255).pack(autopilot))[0])
+    assert not s.ignoring_overrides(10.0)
+    neutral = [1500] * 18
+    s.handle(_parse(autopilot.rc_channels_encode(0, 8, *neutral, 255).pack(autopilot))[0])
+    assert s.ignoring_overrides(10.0)
+
+
+def test_messages_from_another_component_are_not_the_autopilots() -> None:
+    s = _session()
+    other = mavlink.MAVLink(None, srcSystem=3, srcComponent=191)
+    s.handle(_parse(other.heartbeat_encode(10, 3, 0, 4, 4).pack(other))[0])
+    assert s.custom_mode is None
+
+
+def test_model_for_a_faster_vehicle_reaches_its_top_speed() -> None:
+    m = BuoyModel.for_top_speed(9.0)
+    drag = m.linear_drag_n_per_mps * 9.0 + m.quadratic_drag_n_per_mps2 * 81.0
+    assert drag == pytest.approx(m.max_thrust_n)
+    with pytest.raises(ValueError, match="top speed"):
+        BuoyModel.for_top_speed(math.nan)
+
+
+# -- the start-up against a scripted autopilot -------------------------------------------------------------
+
+
+class ScriptedAutopilot:
+    """Just enough of an autopilot to walk the start-up: heartbeats, parameters, a mode, a GPS fix, and arming
+    refused `refusals` times with a PreArm text before it is accepted."""
+
+    def __init__(self, session: AutopilotSession, params: dict[str, float], refusals: int, fix_type: int = 3):
+        self.session, self.params, self.refusals, self.fix_type = session, params, refusals, fix_type
+        self.mav = mavlink.MAVLink(None, srcSystem=session.target_system, srcComponent=1)
+        self.mode, self.armed, self.inbox = 0, False, bytearray()
+        self.overrides = 0
+
+    def send(self, data: bytes) -> None:
+        self.inbox += data
+
+    def _out(self, msg) -> None:
+        for decoded in _parse(msg.pack(self.mav)):
+            self.session.handle(decoded)
+
+    def pump(self, _wait_s: float) -> None:
+        flags = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        self._out(self.mav.heartbeat_encode(10, 3, flags, self.mode, 4))
+        self._out(self.mav.gps_raw_int_encode(0, self.fix_type, 0, 0, 0, 0, 0, 0, 0, 9))
+        for msg in _parse(bytes(self.inbox)):
+            name = msg.get_type()
+            if name == "PARAM_REQUEST_READ":
+                pid = msg.param_id
+                if pid in self.params:
+                    self._out(self.mav.param_value_encode(pid.encode(), self.params[pid], 9, 1, 0))
+            elif name == "RC_CHANNELS_OVERRIDE":
+                self.overrides += 1
+            elif name == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+                self.mode = int(msg.param2)
+                self._out(self.mav.command_ack_encode(msg.command, 0))
+            elif name == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                if self.refusals > 0:
+                    self.refusals -= 1
+                    self._out(self.mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_FAILED))
+                    self._out(self.mav.statustext_encode(3, b"PreArm: GPS not healthy"))
+                else:
+                    self.armed = True
+                    self._out(self.mav.command_ack_encode(msg.command, 0))
+            elif name == "COMMAND_LONG":
+                self._out(self.mav.command_ack_encode(msg.command, 0))
+        self.inbox.clear()
+
+
+def _start(params: dict[str, float], refusals: int = 0, kind: str = BUOY, **options) -> tuple:
+    session = AutopilotSession(1, kind, Encoder(), clock=time.monotonic)
+    autopilot = ScriptedAutopilot(session, params, refusals)
+    said: list[str] = []
+    opts = StartOptions(neutral_lead_s=0.05, param_timeout_s=0.3, arm_timeout_s=6.0, **options)
+    notify = lambda _severity, text: said.append(text)  # noqa: E731
+    starter = AutopilotStarter(session, autopilot.send, autopilot.pump, lambda: False, notify, opts)
+    return starter, autopilot, said
+
+
+OMNI = {"FRAME_CLASS": 2.0, "FRAME_TYPE": 1.0, "RC_OVERRIDE_TIME": 3.0, "FS_GCS_ENABLE": 1.0, "MAV_GCS_SYSID": 254.0}
+
+
+def test_start_up_reads_the_profile_sets_manual_and_arms_after_refusals() -> None:
+    starter, autopilot, said = _start(OMNI, refusals=2)
+    profile = starter.run()
+    assert profile.lateral_capable and profile.gcs_system_id == 254
+    assert autopilot.armed and autopilot.mode == 0 and autopilot.overrides > 0
+    refusals = [t for t in said if t.startswith("autopilot refused to arm")]
+    assert refusals == ["autopilot refused to arm (failed (its checks did not pass)): PreArm: GPS not healthy"] * 2
+
+
+def test_start_up_gives_up_with_the_autopilots_reasons() -> None:
+    starter, autopilot, _said = _start(OMNI, refusals=99)
+    with pytest.raises(AutopilotStartError, match=r"would not arm within 6 s: PreArm: GPS not healthy"):
+        starter.run()
+    assert not autopilot.armed
+
+
+def test_start_up_refuses_a_buoy_on_a_motorboat() -> None:
+    starter, autopilot, _ = _start({**OMNI, "FRAME_TYPE": 0.0})
+    with pytest.raises(AutopilotStartError, match="cannot move sideways"):
+        starter.run()
+    assert not autopilot.armed
