@@ -27,6 +27,14 @@ and a received frame is accepted only if it is signed with the key and newer tha
 unsigned (`unsigned_rejected`), wrongly signed (`bad_signature`) and replayed or stale (`replay_rejected`)
 frames are counted and dropped. Without a key everything well-formed is accepted.
 
+Every value a handler uses is checked first (`bob_autonomy.gcs_checks`: finite, within the field's range; NaN
+only where MAVLink lets it mean "default", in a parameter the command does not use). A message with a bad
+value changes nothing: it is refused the way its protocol refuses (COMMAND_ACK MAV_RESULT_DENIED, the
+PARAM_VALUE in force, MISSION_ACK MAV_MISSION_INVALID_PARAMn / NO_SPACE / INVALID_SEQUENCE, or no answer to a
+PARAM_REQUEST_READ), with a STATUSTEXT saying which field and why, counted in `counters.out_of_range` and
+logged (the first ten, then at most one line every 10 s). What goes to the autopilot (`AutopilotCommand`) is
+finite by construction.
+
 Nothing raises out of `receive`: noise, truncated frames, bad checksums and exceptions in the handlers are
 counted (`counters.malformed`, `counters.handler_errors`).
 """
@@ -37,10 +45,11 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from bob_autonomy.gcs_checks import command_problem
 from bob_autonomy.gcs_codec import (
     GcsCounters,
     MavlinkCodec,
@@ -49,16 +58,9 @@ from bob_autonomy.gcs_codec import (
     passphrase_to_key,
     signing_timestamp,
 )
+from bob_autonomy.gcs_mission import MissionProtocol, Upload
 from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.params import (
-    FAILSAFE_ACTIONS,
-    MAX_FENCE_VERTICES,
-    MAX_GOALS,
-    LatLon,
-    ParamError,
-    ParameterStore,
-    validate_latlon,
-)
+from bob_autonomy.params import FAILSAFE_ACTIONS, LatLon, ParamError, ParameterStore, validate_latlon
 
 __all__ = [
     "COMPONENT_ID",
@@ -77,29 +79,9 @@ logger = logging.getLogger(__name__)
 COMPONENT_ID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 STATUSTEXT_LEN = 50
 MAX_OUTGOING = 10_000  # frames held for outgoing() at most
+REFUSAL_LOG_FIRST = 10  # out-of-range refusals logged one by one; then at most one line per REFUSAL_LOG_PERIOD_S
+REFUSAL_LOG_PERIOD_S = 10.0
 
-GLOBAL_FRAMES = frozenset(
-    {
-        mavlink.MAV_FRAME_GLOBAL,
-        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-        mavlink.MAV_FRAME_GLOBAL_INT,
-        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-        mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-        mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
-    }
-)
-MISSION_TYPES = (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_FENCE, mavlink.MAV_MISSION_TYPE_RALLY)
-# The one mission command each mission type takes.
-MISSION_ITEM_COMMAND = {
-    mavlink.MAV_MISSION_TYPE_MISSION: mavlink.MAV_CMD_NAV_WAYPOINT,
-    mavlink.MAV_MISSION_TYPE_FENCE: mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
-    mavlink.MAV_MISSION_TYPE_RALLY: mavlink.MAV_CMD_NAV_RALLY_POINT,
-}
-MISSION_CAPACITY = {
-    mavlink.MAV_MISSION_TYPE_MISSION: MAX_GOALS,
-    mavlink.MAV_MISSION_TYPE_FENCE: MAX_FENCE_VERTICES,
-    mavlink.MAV_MISSION_TYPE_RALLY: 1,
-}
 CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
@@ -121,7 +103,9 @@ class AutopilotCommand:
     firmware_bridge.commands.command_long_arm / set_mode). `kind` is "arm", "disarm" or "set_mode";
     `force` (arm / disarm with param2 = 21196); `base_mode` and `custom_mode` of DO_SET_MODE (for an
     ArduPilot Rover, custom_mode is the mode number: HOLD 4, AUTO 10, GUIDED 15, ...); `params` the seven
-    raw parameters; `source` the (system, component) that sent it; `t_s` our clock at reception."""
+    parameters as received, a NaN of an unused one (MAVLink's "default") as 0; `source` the (system,
+    component) that sent it; `t_s` our clock at reception. Every number in it is finite (ValueError if not):
+    nothing non-finite can reach the autopilot through it."""
 
     kind: str
     command: int
@@ -132,18 +116,10 @@ class AutopilotCommand:
     base_mode: int | None = None
     custom_mode: int | None = None
 
-
-@dataclass
-class _Upload:
-    peer: tuple[int, int]
-    mission_type: int
-    count: int
-    received: int = 0  # items received so far = the next sequence number wanted
-    points: list[LatLon] = field(default_factory=list)  # waypoints, fence vertices or the rally point
-    vertex_counts: list[float] = field(default_factory=list)  # param1 of each fence vertex
-    return_point: LatLon | None = None  # a fence's MAV_CMD_NAV_FENCE_RETURN_POINT, taken as the rally point
-    last_request_s: float = 0.0
-    retries: int = 0
+    def __post_init__(self) -> None:
+        numbers = [*self.params, self.t_s, *(v for v in (self.base_mode, self.custom_mode) if v is not None)]
+        if not all(math.isfinite(v) for v in numbers):
+            raise ValueError(f"{self.kind} command {self.command} with a value that is not finite: {numbers}")
 
 
 @dataclass
@@ -157,7 +133,7 @@ class _Command:
 Handler = Callable[["GcsComponent", _Command], int]
 
 
-class GcsComponent:
+class GcsComponent(MissionProtocol):
     """The autonomy process's MAVLink component (see the module docstring).
 
     system_id: the vessel's MAVLink system id (the autopilot's). params: the ParameterStore it serves.
@@ -205,9 +181,10 @@ class GcsComponent:
         self._last_heartbeat_s: float | None = None
         self._position: tuple[float, ...] | None = None
         self._last_position_s: float | None = None
-        self._upload: _Upload | None = None
+        self._upload: Upload | None = None
         self._last_upload: tuple[tuple[int, int], int, int, int] | None = None  # peer, type, count, result
         self._statustext_id = 0
+        self._last_refusal_log_s = -math.inf
         if params.load_problem:
             self.notify(mavlink.MAV_SEVERITY_WARNING, params.load_problem)
 
@@ -265,6 +242,9 @@ class GcsComponent:
         """Report an event with STATUSTEXT (MAV_SEVERITY_*; 0 emergency .. 7 debug); text longer than 50
         characters goes in chunks that share an id. Also logged."""
         logger.log(_LOG_LEVEL.get(severity, logging.INFO), "%s", text)
+        self._statustext(severity, text)
+
+    def _statustext(self, severity: int, text: str) -> None:
         data = text.encode("ascii", errors="replace")
         if len(data) <= STATUSTEXT_LEN:
             self._queue(self.codec.mav.statustext_encode(severity, data, 0, 0))
@@ -404,8 +384,12 @@ class GcsComponent:
             self._send_param(name)
 
     def _param_request_read(self, msg) -> None:
+        index = msg.param_index  # -1: by name (MAVLink); otherwise 0 .. count - 1
+        if not -1 <= index < len(self.params):
+            self._refuse_value(f"PARAM_REQUEST_READ: param_index {index} outside [-1, {len(self.params) - 1}]")
+            return
         try:
-            name = self.params.name_at(msg.param_index) if msg.param_index >= 0 else msg.param_id
+            name = self.params.name_at(index) if index >= 0 else msg.param_id
             self.params.spec(name)
         except ParamError as exc:
             self.notify(mavlink.MAV_SEVERITY_WARNING, f"PARAM_REQUEST_READ: {exc}")
@@ -419,10 +403,10 @@ class GcsComponent:
             self.notify(mavlink.MAV_SEVERITY_WARNING, f"PARAM_SET: unknown parameter {name!r}")
             return
         try:
-            self.params.set(name, float(msg.param_value))
+            self.params.set(name, float(msg.param_value))  # checks finite, integral for INT32, in range
         except ParamError as exc:
             self.counters.params_rejected += 1
-            self.notify(mavlink.MAV_SEVERITY_WARNING, str(exc))  # names the parameter and says why
+            self._refuse_value(f"PARAM_SET refused: {exc}")  # names the parameter and says why
         else:
             self.counters.params_set += 1
             self._persist_warning()
@@ -431,6 +415,17 @@ class GcsComponent:
     def _persist_warning(self) -> None:
         if self.params.persist_error:
             self.notify(mavlink.MAV_SEVERITY_ERROR, self.params.persist_error)
+
+    def _refuse_value(self, text: str) -> None:
+        """A message refused for a value that is not finite or out of its field's range: counted, told to the
+        ground station (STATUSTEXT), logged (the first REFUSAL_LOG_FIRST, then one line per period)."""
+        c = self.counters
+        c.out_of_range += 1
+        self._statustext(mavlink.MAV_SEVERITY_WARNING, text)
+        now = float(self.clock())
+        if c.out_of_range <= REFUSAL_LOG_FIRST or now - self._last_refusal_log_s >= REFUSAL_LOG_PERIOD_S:
+            self._last_refusal_log_s = now
+            logger.warning("%s (%d messages refused for out-of-range values so far)", text, c.out_of_range)
 
     # -- commands ------------------------------------------------------------------------------------------
 
@@ -442,19 +437,24 @@ class GcsComponent:
     def _command_int(self, msg) -> None:
         params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
         cmd = _Command(msg.command, params, (msg.x / 1e7, msg.y / 1e7), (msg.get_srcSystem(), msg.get_srcComponent()))
-        self._run_command(cmd)
+        self._run_command(cmd, msg.frame)
 
-    def _run_command(self, cmd: _Command) -> None:
+    def _run_command(self, cmd: _Command, frame: int | None = None) -> None:
+        """Check the command's values, run its handler, answer with a COMMAND_ACK. frame: COMMAND_INT's."""
         self.counters.commands += 1
         handler = _COMMANDS.get(cmd.command)
+        problem = command_problem(cmd.command, cmd.params, cmd.latlon, frame)
         if handler is None:
             self.counters.commands_unsupported += 1
             result = mavlink.MAV_RESULT_UNSUPPORTED
+        elif problem is not None:
+            self._refuse_value(f"{_command_name(cmd.command)} refused: {problem}")
+            result = mavlink.MAV_RESULT_DENIED
         else:
             try:
                 result = handler(self, cmd)
-            except ParamError as exc:
-                self.notify(mavlink.MAV_SEVERITY_WARNING, f"{_command_name(cmd.command)} refused: {exc}")
+            except ParamError as exc:  # a value the parameters' own ranges refuse
+                self._refuse_value(f"{_command_name(cmd.command)} refused: {exc}")
                 result = mavlink.MAV_RESULT_DENIED
             except Exception:
                 self.counters.handler_errors += 1
@@ -482,7 +482,7 @@ class GcsComponent:
         return mavlink.MAV_RESULT_ACCEPTED
 
     def _cmd_forward(self, cmd: _Command) -> int:
-        p = cmd.params
+        p = tuple(0.0 if math.isnan(v) else float(v) for v in cmd.params)  # NaN: an unused parameter's default
         now = float(self.clock())
         if cmd.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             if p[0] not in (0.0, 1.0):
@@ -538,206 +538,6 @@ class GcsComponent:
         self._send_autopilot_version()
         return mavlink.MAV_RESULT_ACCEPTED
 
-    # -- mission protocol ----------------------------------------------------------------------------------
-
-    def _mission_ack(self, peer: tuple[int, int], mission_type: int, result: int) -> None:
-        self._queue(self.codec.mav.mission_ack_encode(peer[0], peer[1], result, mission_type))
-
-    def _request_item(self, up: _Upload) -> None:
-        # Always MISSION_REQUEST_INT (degE7 positions): QGroundControl, MAVProxy and Mission Planner answer it;
-        # a legacy MISSION_ITEM answer (float32 degrees, about 0.4 m steps) is accepted all the same.
-        up.last_request_s = float(self.clock())
-        self._queue(self.codec.mav.mission_request_int_encode(up.peer[0], up.peer[1], up.received, up.mission_type))
-
-    def _mission_count(self, msg) -> None:
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        mission_type = msg.mission_type
-        count = msg.count
-        if mission_type not in MISSION_TYPES:
-            self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
-            return
-        if self._upload is not None and self._upload.peer != peer:
-            self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_DENIED)  # busy with another upload
-            return
-        self._upload = None
-        if count > MISSION_CAPACITY[mission_type]:
-            self._mission_error(peer, mission_type, mavlink.MAV_MISSION_NO_SPACE,
-                                f"{count} items, at most {MISSION_CAPACITY[mission_type]}")  # fmt: skip
-            return
-        if mission_type == mavlink.MAV_MISSION_TYPE_FENCE and 0 < count < 3:
-            self._mission_error(peer, mission_type, mavlink.MAV_MISSION_INVALID, f"a fence needs 3 vertices, {count}")
-            return
-        if count == 0:
-            self._finish_upload(_Upload(peer, mission_type, 0))
-            return
-        self._upload = _Upload(peer, mission_type, count)
-        self._request_item(self._upload)
-
-    def _mission_item(self, msg) -> None:
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        up = self._upload
-        if up is None or up.peer != peer or msg.mission_type != up.mission_type:
-            last = self._last_upload
-            if last is not None and last[:2] == (peer, msg.mission_type) and msg.seq == last[2] - 1:
-                self._mission_ack(peer, msg.mission_type, last[3])  # our final ACK was lost: say it again
-            return
-        expected = up.received
-        if msg.seq != expected:
-            if msg.seq > expected:
-                self._request_item(up)  # out of order: ask again for the one we need
-            return  # a duplicate of one we have: ignore
-        if msg.get_type() == "MISSION_ITEM_INT":
-            lat, lon = msg.x / 1e7, msg.y / 1e7
-        else:
-            lat, lon = float(msg.x), float(msg.y)
-        error = self._check_item(up, msg, lat, lon)
-        if error is not None:
-            result, why = error
-            self._upload = None
-            self._mission_error(peer, up.mission_type, result, f"item {msg.seq}: {why}")
-            return
-        up.received += 1
-        up.retries = 0
-        if msg.command == mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT:
-            up.return_point = (lat, lon)
-        else:
-            up.points.append((lat, lon))
-            up.vertex_counts.append(float(msg.param1))
-        if up.received == up.count:
-            self._upload = None
-            self._finish_upload(up)
-        else:
-            self._request_item(up)
-
-    def _check_item(self, up: _Upload, msg, lat: float, lon: float) -> tuple[int, str] | None:
-        wanted = {MISSION_ITEM_COMMAND[up.mission_type]}
-        if up.mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
-            wanted.add(mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT)
-        if msg.command not in wanted:
-            return mavlink.MAV_MISSION_UNSUPPORTED, f"command {msg.command} not supported here (only {sorted(wanted)})"
-        if msg.frame not in GLOBAL_FRAMES:
-            return mavlink.MAV_MISSION_UNSUPPORTED_FRAME, f"frame {msg.frame} is not a global frame"
-        if not (math.isfinite(lat) and -90.0 <= lat <= 90.0):
-            return mavlink.MAV_MISSION_INVALID_PARAM5_X, f"latitude {lat} out of range"
-        if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
-            return mavlink.MAV_MISSION_INVALID_PARAM6_Y, f"longitude {lon} out of range"
-        return None
-
-    def _finish_upload(self, up: _Upload) -> None:
-        try:
-            if up.mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
-                self.params.set_goals(up.points)
-                what = f"{len(up.points)} goal waypoints"
-            elif up.mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
-                if any(n != len(up.points) for n in up.vertex_counts):
-                    self._mission_error(up.peer, up.mission_type, mavlink.MAV_MISSION_UNSUPPORTED,
-                                        f"vertex counts {sorted(set(up.vertex_counts))} for {len(up.points)} vertices: "
-                                        "only one inclusion polygon is supported")  # fmt: skip
-                    return
-                self.params.set_fence(up.points)
-                if up.return_point is not None:
-                    self.params.set_many({"BOB_RALLY_LAT": up.return_point[0], "BOB_RALLY_LON": up.return_point[1]})
-                what = f"fence of {len(up.points)} vertices"
-            else:
-                lat, lon = up.points[0] if up.points else (0.0, 0.0)
-                self.params.set_many({"BOB_RALLY_LAT": lat, "BOB_RALLY_LON": lon})
-                what = "rally point"
-        except ParamError as exc:
-            self._mission_error(up.peer, up.mission_type, mavlink.MAV_MISSION_INVALID, str(exc))
-            self._last_upload = (up.peer, up.mission_type, up.count, mavlink.MAV_MISSION_INVALID)
-            return
-        self.counters.mission_uploads += 1
-        self._last_upload = (up.peer, up.mission_type, up.count, mavlink.MAV_MISSION_ACCEPTED)
-        self._mission_ack(up.peer, up.mission_type, mavlink.MAV_MISSION_ACCEPTED)
-        self._persist_warning()
-        self.notify(mavlink.MAV_SEVERITY_INFO, f"received {what}" if up.points else f"{what} cleared")
-
-    def _mission_error(self, peer: tuple[int, int], mission_type: int, result: int, why: str) -> None:
-        self.counters.mission_errors += 1
-        self._mission_ack(peer, mission_type, result)
-        self.notify(mavlink.MAV_SEVERITY_WARNING, f"{_MISSION_TYPE_NAMES.get(mission_type, mission_type)} upload "
-                    f"refused: {why}")  # fmt: skip
-
-    def _check_upload_timeout(self, now: float) -> None:
-        up = self._upload
-        if up is None or now - up.last_request_s < self.mission_timeout_s:
-            return
-        if up.retries >= self.mission_retries:
-            self._upload = None
-            self._mission_error(up.peer, up.mission_type, mavlink.MAV_MISSION_OPERATION_CANCELLED,
-                                f"no item {up.received} after {up.retries + 1} requests")  # fmt: skip
-            return
-        up.retries += 1
-        self.counters.mission_retries += 1
-        self._request_item(up)
-
-    def _mission_points(self, mission_type: int) -> list[LatLon] | None:
-        if mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
-            return self.goals
-        if mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
-            return self.fence
-        if mission_type == mavlink.MAV_MISSION_TYPE_RALLY:
-            lat, lon = float(self.params.get("BOB_RALLY_LAT")), float(self.params.get("BOB_RALLY_LON"))
-            return [] if lat == 0 and lon == 0 else [(lat, lon)]
-        return None
-
-    def _mission_request_list(self, msg) -> None:
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        points = self._mission_points(msg.mission_type)
-        if points is None:
-            self._mission_ack(peer, msg.mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
-            return
-        self._queue(self.codec.mav.mission_count_encode(peer[0], peer[1], len(points), msg.mission_type))
-
-    def _mission_request(self, msg) -> None:
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        points = self._mission_points(msg.mission_type)
-        if points is None:
-            self._mission_ack(peer, msg.mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
-            return
-        if not 0 <= msg.seq < len(points):
-            self._mission_ack(peer, msg.mission_type, mavlink.MAV_MISSION_INVALID_SEQUENCE)
-            return
-        lat, lon = points[msg.seq]
-        command = MISSION_ITEM_COMMAND[msg.mission_type]
-        param1 = float(len(points)) if msg.mission_type == mavlink.MAV_MISSION_TYPE_FENCE else 0.0
-        if msg.get_type() == "MISSION_REQUEST_INT":
-            message = self.codec.mav.mission_item_int_encode(
-                peer[0], peer[1], msg.seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1,
-                param1, 0.0, 0.0, 0.0, round(lat * 1e7), round(lon * 1e7), 0.0, msg.mission_type,
-            )  # fmt: skip
-        else:
-            message = self.codec.mav.mission_item_encode(
-                peer[0], peer[1], msg.seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, command, 0, 1,
-                param1, 0.0, 0.0, 0.0, lat, lon, 0.0, msg.mission_type,
-            )  # fmt: skip
-        self._queue(message)
-
-    def _mission_ack_in(self, msg) -> None:
-        up = self._upload
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        ours = up is not None and up.peer == peer and msg.mission_type == up.mission_type
-        if ours and msg.type != mavlink.MAV_MISSION_ACCEPTED:  # the ground station gave up
-            self._upload = None
-            self.counters.mission_errors += 1
-            self.notify(mavlink.MAV_SEVERITY_WARNING, f"mission upload cancelled by {peer[0]}/{peer[1]}")
-
-    def _mission_clear_all(self, msg) -> None:
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        mission_type = msg.mission_type
-        if mission_type not in (*MISSION_TYPES, mavlink.MAV_MISSION_TYPE_ALL):
-            self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_UNSUPPORTED)
-            return
-        if mission_type in (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_ALL):
-            self.params.set_goals([])
-        if mission_type in (mavlink.MAV_MISSION_TYPE_FENCE, mavlink.MAV_MISSION_TYPE_ALL):
-            self.params.set_fence([])
-        if mission_type in (mavlink.MAV_MISSION_TYPE_RALLY, mavlink.MAV_MISSION_TYPE_ALL):
-            self.params.set_many({"BOB_RALLY_LAT": 0.0, "BOB_RALLY_LON": 0.0})
-        self._persist_warning()
-        self._mission_ack(peer, mission_type, mavlink.MAV_MISSION_ACCEPTED)
-        self.notify(mavlink.MAV_SEVERITY_INFO, f"{_MISSION_TYPE_NAMES.get(mission_type, mission_type)} cleared")
-
 
 _HANDLERS: dict[str, Callable[[GcsComponent, object], None]] = {
     "PARAM_REQUEST_LIST": GcsComponent._param_request_list,
@@ -769,12 +569,6 @@ _COMMANDS: dict[int, Handler] = {
     mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: GcsComponent._cmd_capabilities,
 }
 
-_MISSION_TYPE_NAMES = {
-    mavlink.MAV_MISSION_TYPE_MISSION: "mission",
-    mavlink.MAV_MISSION_TYPE_FENCE: "fence",
-    mavlink.MAV_MISSION_TYPE_RALLY: "rally",
-    mavlink.MAV_MISSION_TYPE_ALL: "all missions",
-}
 
 _LOG_LEVEL = {0: logging.CRITICAL, 1: logging.CRITICAL, 2: logging.CRITICAL, 3: logging.ERROR,
               4: logging.WARNING, 5: logging.INFO, 6: logging.INFO, 7: logging.DEBUG}  # fmt: skip

@@ -99,7 +99,11 @@ class GcsCounters:
     """What a codec / component has seen. Frames: every complete candidate frame (`frames`) is exactly one
     of `accepted`, `malformed` (bad checksum, header, length or payload), `unknown_id` (a message id the
     dialect does not know), `unsigned_rejected`, `bad_signature`, `replay_rejected`. `skipped_bytes` is
-    noise between frames. The component adds what it did with accepted messages."""
+    noise between frames. The component adds what it did with accepted messages; `out_of_range` counts the
+    messages it refused for a value that is not finite or outside its field's range (bob_autonomy.gcs_checks).
+    `SECURITY` names the counters an operator should see (logged and reported by process fleets)."""
+
+    SECURITY = ("unsigned_rejected", "bad_signature", "replay_rejected", "malformed", "out_of_range")
 
     bytes_received: int = 0
     frames: int = 0
@@ -123,6 +127,11 @@ class GcsCounters:
     mission_errors: int = 0
     mission_retries: int = 0
     dropped_outgoing: int = 0
+    out_of_range: int = 0
+
+    def security(self) -> dict[str, int]:
+        """The counters of rejected input (`SECURITY`), by name."""
+        return {name: int(getattr(self, name)) for name in self.SECURITY}
 
 
 class MavlinkCodec:
