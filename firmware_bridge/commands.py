@@ -22,6 +22,8 @@ from collections.abc import Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from firmware_bridge.rc_channels import RcChannelRange
+
 PWM_NEUTRAL = 1500
 PWM_SPAN = 400  # so commands span 1100..1900
 CHANNEL_STEERING = 1
@@ -29,6 +31,7 @@ CHANNEL_THROTTLE = 3
 CHANNEL_LATERAL = 4
 UINT16_MAX = 65535
 GCS_SYSTEM_ID = 255  # ArduPilot's default SYSID_MYGCS
+DEFAULT_RC_RANGE = RcChannelRange()  # ArduPilot's RCn_MIN/TRIM/MAX defaults, Rover's dead zone
 ROVER_MODES = {"MANUAL": 0, "ACRO": 1, "STEERING": 3, "HOLD": 4, "LOITER": 5, "AUTO": 10, "RTL": 11, "GUIDED": 15}
 
 
@@ -54,11 +57,9 @@ def _enc(encoder: Encoder | None) -> Encoder:
 
 
 def normalised_to_pwm(value: float) -> int:
-    """[-1, 1] -> PWM 1100..1900 about 1500, clipped; NaN/inf -> 1500 (neutral)."""
-    v = float(value)
-    if not math.isfinite(v):
-        return PWM_NEUTRAL
-    return PWM_NEUTRAL + round(PWM_SPAN * min(1.0, max(-1.0, v)))
+    """[-1, 1] -> the PWM (1100..1900 about 1500) that ArduPilot with its default RC calibration and Rover's 30 us
+    dead zone reads back as `value` (`firmware_bridge.rc_channels`); clipped; NaN/inf -> 1500 (neutral)."""
+    return DEFAULT_RC_RANGE.pwm_for(value)
 
 
 def _ratio(value: float, scale: float) -> float:
@@ -201,10 +202,11 @@ def set_mode(mode: str | int, target_system: int = 1, target_component: int = 1,
 
 
 def pwm_to_normalised(pwm: int) -> float:
-    """The inverse of `normalised_to_pwm`: an RC PWM (us) to [-1, 1]; 0 and UINT16_MAX (not overridden) give NaN."""
+    """What ArduPilot reads from an RC PWM (us) with its default calibration and dead zone, in [-1, 1] (the
+    inverse of `normalised_to_pwm`); 0 and UINT16_MAX (not overridden) give NaN."""
     if pwm in (0, UINT16_MAX):
         return math.nan
-    return min(1.0, max(-1.0, (int(pwm) - PWM_NEUTRAL) / PWM_SPAN))
+    return DEFAULT_RC_RANGE.value_of(int(pwm))
 
 
 def rc_axes(message) -> tuple[float, float, float]:

@@ -30,7 +30,8 @@ def channels(message) -> list[int]:
         ((0.0, 0.0), 1500, 1500),  # zero
         ((-10.0, 0.0), 1100, 1500),  # full reverse
         ((25.0, -40.0), 1900, 1900),  # clipped; y to the right -> lateral high
-        ((5.0, 5.0), 1700, 1300),  # half forward, half to the left
+        # half forward, half to the left: past Rover's 30 us dead zone, 1530 + 0.5 * 370 (ArduPilot's scaling)
+        ((5.0, 5.0), 1715, 1285),
         ((math.nan, 0.0), 1500, 1500),  # non-finite -> neutral
     ],
 )
@@ -48,7 +49,7 @@ def test_rc_override_for_thrust(thrust, throttle, lateral):
 
 def test_rc_override_yaw_command_ccw_positive_is_steering_left():
     message = decode_one(commands.rc_override_for_thrust((0.0, 0.0), 10.0, yaw_command=0.5))
-    assert channels(message)[0] == 1300
+    assert channels(message)[0] == 1285  # 1470 - 0.5 * 370
     with pytest.raises(ValueError):
         commands.rc_override_for_thrust((1.0, 0.0), 0.0)
 
@@ -59,8 +60,8 @@ def test_rc_override_yaw_command_ccw_positive_is_steering_left():
         (2.0, 2.0, 1900, 1500),
         (0.0, 0.0, 1500, 1500),
         (2.0, -2.0, 1500, 1900),  # spin clockwise (turn right)
-        (-1.0, 1.0, 1500, 1300),
-        (1.0, 0.0, 1600, 1600),
+        (-1.0, 1.0, 1500, 1285),  # 1470 - 0.5 * 370
+        (1.0, 0.0, 1623, 1623),  # 1530 + 0.25 * 370, rounded away from the dead zone
         (9.0, 9.0, 1900, 1500),  # clipped
     ],
 )
