@@ -20,7 +20,7 @@ import math
 import statistics
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +28,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from behaviors.base import Senses
 from bob_autonomy.agent import Agent
+from bob_autonomy.autopilot import AutopilotSession
+from bob_autonomy.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.clock import ScaledWallClock
 from bob_autonomy.gcs import GcsComponent, load_signing_key
@@ -40,7 +42,7 @@ from bob_autonomy.senses import EbotSenses
 from bob_autonomy.supervisor import Supervisor, behavior_params
 from bob_autonomy.vehicle_link import BUOY, EBOT, VehicleLink
 from bob_autonomy.velocity_control import BuoyModel
-from firmware_bridge.commands import heartbeat
+from firmware_bridge.commands import ROVER_MODES, heartbeat
 from firmware_bridge.links import Link, LinkError, open_link
 from firmware_bridge.tlog import TlogWriter
 
@@ -49,6 +51,10 @@ logger = logging.getLogger(__name__)
 
 class VehicleError(RuntimeError):
     """The vehicle cannot be driven (never answered, refused to arm); the message says which and why."""
+
+
+ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
+STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
 
 
 @dataclass(frozen=True)
@@ -90,6 +96,9 @@ class VesselConfig:
     signing_key_file: str | None = None
     autostart: bool = True
     tlog: str | None = None
+    autopilot: StartOptions = field(default_factory=StartOptions)
+    on_stop: str = "neutral"
+    top_speed_mps: float | None = None
 
     @property
     def agent_id(self) -> int:
@@ -159,6 +168,7 @@ class VesselStats:
     reading_errors: int = 0
     step_errors: int = 0
     silent_alarms: int = 0
+    estimator_resets: int = 0
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
 
@@ -179,17 +189,12 @@ class Vessel:
         self.config = config
         self.clock = clock or ScaledWallClock(config.time_scale)
         c = config
+        if c.on_stop not in ON_STOP_ACTIONS:
+            raise ValueError(f"on_stop must be one of {', '.join(ON_STOP_ACTIONS)}, got {c.on_stop!r}")
         if c.kind == BUOY:
-            max_thrust = BuoyModel().max_thrust_n
-            self.max_actuator = max_thrust
-            self.pipeline: BuoyPipeline | EbotPipeline = BuoyPipeline(
-                1,
-                LocalFrame(*c.origin),
-                np.array([max_thrust * c.max_thrust_fraction]),
-                estimator=c.estimator,
-                controller=c.controller,
-                dt_s=c.dt_s,
-            )
+            model = BuoyModel() if c.top_speed_mps is None else BuoyModel.for_top_speed(c.top_speed_mps)
+            self.max_actuator = model.max_thrust_n
+            self.pipeline: BuoyPipeline | EbotPipeline = self._buoy_pipeline(model)
         elif c.kind == EBOT:
             e = c.ebot
             self.max_actuator = e.max_wheel_speed_mps
@@ -223,8 +228,10 @@ class Vessel:
         self.vehicle = VehicleLink(
             c.system_id, c.kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
         )
-        if self.tlog is not None:
-            self.vehicle.decoder.message_hook = self.tlog.write_message
+        self.autopilot = AutopilotSession(
+            c.system_id, c.kind, self.vehicle.encoder, self.clock.now, estimator=c.estimator
+        )
+        self.vehicle.decoder.message_hook = self._vehicle_message
         self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
         self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
         network = (
@@ -242,8 +249,29 @@ class Vessel:
         self._last_reading_wall_s: float | None = None
         self._alarm = False
         self.has_fix = False
+        self._obeying = True
+        self._ignoring_since: float | None = None
+        self._ignoring_warned = False
+
+    def _buoy_pipeline(self, model: BuoyModel) -> BuoyPipeline:
+        c = self.config
+        return BuoyPipeline(
+            1,
+            LocalFrame(*c.origin),
+            np.array([model.max_thrust_n * c.max_thrust_fraction]),
+            estimator=c.estimator,
+            controller=c.controller,
+            dt_s=c.dt_s,
+            model=model,
+        )
 
     # -- link ------------------------------------------------------------------------------------------
+
+    def _vehicle_message(self, msg) -> None:
+        """Every message decoded from the vehicle link: to the tlog, and the autopilot's to the session."""
+        if self.tlog is not None:
+            self.tlog.write_message(msg)
+        self.autopilot.handle(msg)
 
     def _send(self, data: bytes) -> None:
         if self.tlog is not None:
@@ -279,6 +307,11 @@ class Vessel:
                 except Exception:  # one bad reading must not stop the vessel: count it, log it, go on
                     self.stats.reading_errors += 1
                     logger.exception("readings could not be fused (%d so far)", self.stats.reading_errors)
+
+    def _pump_and_serve(self, wait_wall_s: float) -> None:
+        """Read the vehicle link and serve the ground station (during the start-up, which the GCS sees)."""
+        self.pump(wait_wall_s)
+        self.serve_gcs()
 
     def serve_gcs(self) -> None:
         """Exchange what is due with the ground station(s): read their datagrams, answer, pass on autopilot
@@ -319,34 +352,52 @@ class Vessel:
             heading = float(e.heading[0]) if math.isfinite(e.heading[0]) else None
             self.gcs.report_position(float(lat), float(lon), float(vx), float(vy), heading)
 
+    def _check_estimate(self, now: float) -> None:
+        """A diverged estimate (non-finite, or far from the newest GPS fix) is reset and reported; the vessel is
+        held at neutral until a fix sets the estimate again."""
+        if not isinstance(self.pipeline, BuoyPipeline) or not self.pipeline.diverged(now).any():
+            return
+        e = self.pipeline.estimate(now)
+        self.pipeline.reset()
+        self.has_fix = False
+        self.stats.estimator_resets += 1
+        text = (
+            f"vessel {self.config.system_id}: position estimate diverged ({e.position[0, 0]:.3g}, "
+            f"{e.position[0, 1]:.3g}) m against the GPS fix; filter reset ({self.stats.estimator_resets} so far)"
+        )
+        logger.error("%s", text)
+        self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+
     def _heartbeat(self, now: float) -> None:
         if now >= self._next_heartbeat_s:
             self._next_heartbeat_s = now + self.config.time_scale  # one wall second
-            self._send(heartbeat())
+            self._send(heartbeat(encoder=self.autopilot.encoder))
 
     # -- start -----------------------------------------------------------------------------------------
 
     def arm(self) -> None:
-        """Arm the vehicle: COMMAND_LONG until a COMMAND_ACK accepts it (one try per wall second)."""
-        deadline = time.monotonic() + self.config.arm_timeout_s
-        while time.monotonic() < deadline and not self._stop.is_set():
-            self._send(heartbeat())
-            self._send(self.vehicle.arm(True))
-            tries_until = time.monotonic() + 1.0
-            while time.monotonic() < tries_until:
-                self.pump(0.05)
-                ack = self.vehicle.take_ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
-                if ack is not None:
-                    if ack.result == mavlink.MAV_RESULT_ACCEPTED:
-                        logger.info("vehicle %d armed", self.config.system_id)
-                        return
-                    raise VehicleError(f"vehicle {self.config.system_id} refused to arm (MAV_RESULT {ack.result})")
-        if self._stop.is_set():
-            return
-        raise VehicleError(
-            f"vehicle {self.config.system_id} on {self.config.vehicle!r} did not acknowledge arming within "
-            f"{self.config.arm_timeout_s} s (heartbeat {'seen' if self.vehicle.last_heartbeat else 'never seen'})"
+        """Bring the autopilot into service (`bob_autonomy.autopilot_start`): streams, parameters, mode, ready,
+        armed. Raises VehicleError saying what is wrong and what to change."""
+        c = self.config
+        options = replace(
+            c.autopilot, heartbeat_timeout_s=c.arm_timeout_s, arm_timeout_s=c.arm_timeout_s, control_period_s=c.dt_s
         )
+        starter = AutopilotStarter(
+            self.autopilot, self._send, self._pump_and_serve, self._stop.is_set, self.gcs.notify, options
+        )
+        try:
+            profile = starter.run()
+        except AutopilotStartError as error:
+            raise VehicleError(f"vehicle {c.system_id} on {c.vehicle!r}: {error}") from None
+        if profile is None:
+            return
+        speed = profile.top_speed_mps
+        if c.kind == BUOY and c.top_speed_mps is None and speed is not None:
+            # The autopilot knows how fast full throttle goes; the estimator and the MPC model that vehicle.
+            model = BuoyModel.for_top_speed(speed)
+            self.pipeline = self.body.pipeline = self._buoy_pipeline(model)
+            logger.info("vessel model: top speed %.2f m/s at full throttle (from the autopilot)", speed)
+        logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)
 
     # -- the loop --------------------------------------------------------------------------------------
 
@@ -355,8 +406,14 @@ class Vessel:
         now = self.clock.now()
         self.stats.ticks += 1
         self._heartbeat(now)
-        self._report_position(now)
+        self._check_estimate(now)
+        try:
+            self._report_position(now)
+        except Exception:  # a report is never worth the process: count it and go on
+            self.stats.step_errors += 1
+            logger.exception("position report failed (%d so far)", self.stats.step_errors)
         self.serve_gcs()
+        self._watch_autopilot(now)
         if self.vehicle.silent():
             if not self._alarm:
                 self.stats.silent_alarms += 1
@@ -364,7 +421,7 @@ class Vessel:
                 logger.error("%s: commanding neutral", text)
                 self.gcs.notify(mavlink.MAV_SEVERITY_ALERT, text)
             self._alarm = True
-            self._send(self.vehicle.stop())
+            self._send(self._override(np.zeros(2)))
             return
         if self._alarm:
             logger.warning("vehicle %d heard again", self.config.system_id)
@@ -374,8 +431,11 @@ class Vessel:
         if not self.has_fix:
             self.has_fix = bool(np.isfinite(self.pipeline.estimate(now).position).all())
             if not self.has_fix:
-                self._send(self.vehicle.stop())  # waiting for a position: hold still
+                self._send(self._override(np.zeros(2)))  # waiting for a position: hold still
                 return
+        if not self._obeying:
+            self._send(self._override(np.zeros(2)))  # not in our mode: neutral until it is again
+            return
         try:
             behavior = self.supervisor.behavior()
             if behavior is not self.agent.behavior:
@@ -394,7 +454,7 @@ class Vessel:
             self.stats.step_errors += 1
             logger.exception("control step failed (%d so far); commanding neutral", self.stats.step_errors)
             actuator = np.zeros(2)
-        self._send(self.vehicle.command(actuator))
+        self._send(self._override(actuator))
         done = time.perf_counter()
         self.stats.commands += 1
         self.stats.compute_latency_s.append(done - start)
@@ -427,10 +487,72 @@ class Vessel:
         """Ask `run()` to finish (safe from a signal handler or another thread)."""
         self._stop.set()
 
+    def _override(self, actuator: np.ndarray) -> bytes:
+        """RC overrides for a buoy's body-frame thrust (x forward, y left; N) or an eBot's wheel speeds (left,
+        right; m/s), through the autopilot's RC map and calibration (`AutopilotSession.override`)."""
+        a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2)) / self.max_actuator
+        if self.config.kind == BUOY:
+            return self.autopilot.override(0.0, a[0], -a[1])
+        return self.autopilot.override((a[0] - a[1]) / 2.0, (a[0] + a[1]) / 2.0, None)
+
+    def _watch_autopilot(self, now: float) -> None:
+        """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground
+        station), our overrides not taken, or telemetry too slow for the estimator."""
+        a = self.autopilot
+        wanted = ROVER_MODES[self.config.autopilot.mode]
+        obeying = a.custom_mode is None or a.custom_mode == wanted
+        if obeying != self._obeying:
+            if obeying:
+                text = f"vehicle {self.config.system_id} back in {self.config.autopilot.mode}: driving again"
+            else:
+                text = (
+                    f"vehicle {self.config.system_id} is in {a.mode_name()}, not {self.config.autopilot.mode}: it "
+                    "ignores our commands (a failsafe or a ground station?); commanding neutral until it is back"
+                )
+            logger.warning("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+            self._obeying = obeying
+        ignoring = a.ignoring_overrides(now)
+        if ignoring and self._ignoring_since is None:
+            self._ignoring_since = now
+        elif not ignoring:
+            if self._ignoring_warned:
+                logger.warning("vehicle %d takes our RC overrides again", self.config.system_id)
+            self._ignoring_since, self._ignoring_warned = None, False
+        if self._ignoring_since is not None and now - self._ignoring_since > 2.0 and not self._ignoring_warned:
+            self._ignoring_warned = True
+            text = (
+                f"vehicle {self.config.system_id} does not apply our RC overrides (its RC_CHANNELS differ): "
+                f"check MAV_GCS_SYSID = {a.encoder.mav.srcSystem} and RC_OVERRIDE_TIME > 0"
+            )
+            logger.error("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+        for text in a.slow_streams(now):
+            logger.warning("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+
+    def _linger(self, seconds: float, frame: bytes | None) -> None:
+        """Send `frame` every control period for `seconds` (wall) while reading the link, so that the autopilot
+        has applied it before we close (ArduPilot SITL drops unparsed bytes when a TCP peer closes, issue #18)."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if frame is not None:
+                self._send(frame)
+            self.pump(min(self.config.dt_s, max(0.0, end - time.monotonic())))
+
     def shutdown(self) -> None:
-        """Leave the actuators at zero and close the links."""
-        for _ in range(3):
-            self._send(self.vehicle.stop())
+        """Leave the vehicle at neutral (then in HOLD or disarmed if configured), hand the RC channels back,
+        and close the links."""
+        neutral = self._override(np.zeros(2))
+        self._linger(STOP_LINGER_S, neutral)
+        if self.config.on_stop == "hold":
+            self._send(self.autopilot.set_mode("HOLD"))
+            self._linger(0.3, neutral)
+        elif self.config.on_stop == "disarm":
+            self._send(self.autopilot.arm(False))
+            self._linger(0.3, neutral)
+        self._send(self.autopilot.release())
+        self._linger(0.2, None)
         for link in (self.vehicle_link, self.mesh_link, self.gcs_link):
             if link is not None:
                 link.close()
