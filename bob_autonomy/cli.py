@@ -11,6 +11,12 @@ actuators at zero. A config file holds the same settings as the options (names
 with underscores: `system_id = 3`, `param = ["p0=5"]`); options given on the
 command line win. Exit status: 0 after a clean stop, 2 for a bad command line
 or configuration, 3 when the vehicle cannot be driven.
+
+A config file that cannot be used (missing, not a regular file, over 1 MiB, not
+UTF-8, not TOML, nested too deeply, an unknown setting, a value of the wrong
+type, a non-finite number) is reported in one line naming the file and the
+setting, with exit status 2, never a traceback. Numbers given as options must
+be finite too, and periods and time limits positive.
 """
 
 from __future__ import annotations
@@ -20,12 +26,14 @@ import dataclasses
 import json
 import logging
 import logging.handlers
+import math
 import signal
 import sys
 import tomllib
 
 from behaviors.registry import BEHAVIORS
 from bob_autonomy.behavior_config import BehaviorChoice
+from bob_autonomy.safe_read import MAX_SETTINGS_FILE_BYTES, UnreadableFileError, describe_parse_error, read_small_file
 from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
 
 
@@ -49,6 +57,8 @@ def _param(text: str) -> tuple[str, object]:
         parsed = tomllib.loads(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value  # a bare word: a string
+    except Exception as error:  # RecursionError from deep nesting, MemoryError
+        raise argparse.ArgumentTypeError(f"{key.strip()}: {describe_parse_error(error)}") from None
     return key.strip(), parsed
 
 
@@ -115,27 +125,111 @@ def _setup_logging(path: str | None, verbose: bool) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, handlers=[handler], force=True)
 
 
+# Options that are periods, rates or limits: a zero or negative value would spin or never stop (s, or a factor).
+_POSITIVE = {"time_scale", "dt", "broadcast_period", "neighbor_expiry", "vehicle_timeout", "max_thrust_fraction"}
+
+
+def _read_config(path: str) -> dict[str, object]:
+    """The settings of a --config TOML file; ValueError naming the file and what is wrong with it."""
+    try:
+        raw = read_small_file(path, MAX_SETTINGS_FILE_BYTES)
+    except FileNotFoundError:
+        raise ValueError(f"config {path!r}: no such file") from None
+    except UnreadableFileError as error:
+        raise ValueError(f"config {path!r} {error}") from None
+    try:
+        return tomllib.loads(raw.decode("utf-8"))
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"config {path!r} is not valid TOML: {error}") from None
+    except Exception as error:  # RecursionError (deep nesting), MemoryError, UnicodeDecodeError
+        raise ValueError(f"config {path!r} cannot be read: {describe_parse_error(error)}") from None
+
+
+def _config_value(action: argparse.Action, value: object, where: str) -> object:
+    """A config file's `value` for the option of `action`, checked and converted as the option would be."""
+    name = action.dest
+
+    def wrong(expected: str) -> ValueError:
+        shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+        return ValueError(f"{where}: setting {name!r} must be {expected}, got {shown}")
+
+    try:
+        if isinstance(action, argparse._StoreTrueAction):
+            if not isinstance(value, bool):
+                raise wrong("true or false")
+            return value
+        if name == "param":
+            if not isinstance(value, list) or not all(isinstance(p, str) for p in value):
+                raise wrong('a list of "KEY=VALUE" strings')
+            return [_param(p) for p in value]
+        if name == "origin":
+            if isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value):
+                value = f"{value[0]},{value[1]}"
+            if not isinstance(value, str):
+                raise wrong('"LAT,LON" in degrees')
+            return _latlon(value)
+        if action.type is int:
+            if isinstance(value, str):
+                value = int(value)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise wrong("an integer")
+        elif action.type is float:
+            if isinstance(value, str):
+                value = float(value)
+            if not _is_number(value) or not math.isfinite(value):  # type: ignore[arg-type]
+                raise wrong("a finite number")
+            value = float(value)  # type: ignore[arg-type]
+            if name in _POSITIVE and value <= 0:
+                raise wrong("greater than 0")
+        elif not isinstance(value, str):
+            raise wrong("a string")
+    except (argparse.ArgumentTypeError, ValueError, OverflowError) as error:
+        if str(error).startswith(where):
+            raise
+        raise ValueError(f"{where}: setting {name!r}: {error}") from None
+    if action.choices is not None and value not in action.choices:
+        raise wrong(f"one of {list(action.choices)}")
+    return value
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _check_numbers(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Every float option finite; periods, rates and limits positive (ValueError naming the option)."""
+    for action in parser._actions:
+        value = getattr(args, action.dest, None)
+        if action.type is not float or value is None:
+            continue
+        option = action.option_strings[0]
+        if not math.isfinite(value):
+            raise ValueError(f"{option} {value}: must be a finite number")
+        if action.dest in _POSITIVE and value <= 0:
+            raise ValueError(f"{option} {value}: must be greater than 0")
+    if args.duration is not None and args.duration < 0:
+        raise ValueError(f"--duration {args.duration}: must not be negative")
+    if args.max_thrust_fraction > 1:
+        raise ValueError(f"--max-thrust-fraction {args.max_thrust_fraction}: must be at most 1")
+
+
 def _apply_config_file(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
     """Parse `run` arguments with a --config file's settings as defaults (ValueError naming file and key)."""
     args = parser.parse_args(argv)
-    if args.command != "run" or not args.config:
+    if args.command != "run":
         return args
-    try:
-        with open(args.config, "rb") as f:
-            settings = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as error:
-        raise ValueError(f"cannot read config {args.config!r}: {error}") from None
     run_parser = parser.run_parser  # type: ignore[attr-defined]
-    known = {a.dest for a in run_parser._actions}
-    unknown = sorted(set(settings) - known)
-    if unknown:
-        raise ValueError(f"config {args.config!r}: unknown setting(s) {unknown}")
-    if isinstance(settings.get("origin"), str):
-        settings["origin"] = _latlon(settings["origin"])
-    if "param" in settings:
-        settings["param"] = [_param(p) for p in settings["param"]]
-    run_parser.set_defaults(**settings)
-    return parser.parse_args(argv)
+    if args.config:
+        settings = _read_config(args.config)
+        where = f"config {args.config!r}"
+        actions = {a.dest: a for a in run_parser._actions if a.dest not in ("help", "config")}
+        unknown = sorted(set(settings) - set(actions))
+        if unknown:
+            raise ValueError(f"{where}: unknown setting(s) {unknown}")
+        run_parser.set_defaults(**{k: _config_value(actions[k], v, where) for k, v in settings.items()})
+        args = parser.parse_args(argv)
+    _check_numbers(run_parser, args)
+    return args
 
 
 def config_from_args(args: argparse.Namespace) -> VesselConfig:
@@ -150,8 +244,8 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
     if args.behavior_json:
         try:
             data = json.loads(args.behavior_json)
-        except json.JSONDecodeError as error:
-            raise ValueError(f"--behavior-json is not JSON: {error}") from None
+        except Exception as error:  # JSONDecodeError, RecursionError (deep nesting), MemoryError
+            raise ValueError(f"--behavior-json is not JSON: {describe_parse_error(error)}") from None
     else:
         data = {"behavior": args.behavior, "params": dict(args.param), "avoid_obstacles": args.avoid_obstacles}
     try:
@@ -188,7 +282,11 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
 
 
 def _run(args: argparse.Namespace) -> int:
-    _setup_logging(args.log_file, args.verbose)
+    try:
+        _setup_logging(args.log_file, args.verbose)
+    except OSError as error:
+        print(f"bob-autonomy: cannot open the log file {args.log_file!r}: {error}", file=sys.stderr)
+        return 2
     log = logging.getLogger("bob-autonomy")
     try:
         config = config_from_args(args)

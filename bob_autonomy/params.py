@@ -15,7 +15,14 @@ Windows), so a crash leaves either the old or the new file, never half of one. O
 be parsed, has values of the wrong type or out of range is *corrupt*: a warning naming the file and the
 problem is logged (and kept in `load_problem` for the ground station), the file is renamed aside to
 `<name>.corrupt-<n>` (n = 1, 2, ...: never overwriting an earlier one) and the defaults are used.
+The same holds for a file that cannot be read at all: not UTF-8, nested too deeply for the parser
+(RecursionError), larger than `MAX_FILE_BYTES` (1 MiB; a full file with 500 goals and 100 fence vertices
+is about 40 kB), a directory, FIFO or device in its place, or an OSError such as a permission error. So a
+service restart never meets the same bad file twice. Loading never raises.
 Unknown parameter names in a file (e.g. written by a newer version) only give a warning.
+
+At start (construction with a path), temporary files `.<name>.XXXXXXXX.tmp` that an interrupted atomic
+write left in the file's directory are removed (logged), so killed writes do not accumulate.
 
 Goal coupling: BOB_GOAL_LAT / BOB_GOAL_LON are the first goal. Setting the goal list (command or mission
 upload) sets both; setting either parameter replaces the goal list by the single goal they make
@@ -29,11 +36,15 @@ import json
 import logging
 import math
 import os
+import re
+import stat
 import tempfile
 import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+
+from bob_autonomy.safe_read import MAX_SETTINGS_FILE_BYTES, UnreadableFileError, describe_parse_error, read_small_file
 
 __all__ = [
     "BEHAVIOR_NAMES",
@@ -56,6 +67,7 @@ FILE_FORMAT = "bob-autonomy-params"
 FILE_VERSION = 1
 MAX_GOALS = 500
 MAX_FENCE_VERTICES = 100
+MAX_FILE_BYTES = MAX_SETTINGS_FILE_BYTES  # a parameter file larger than this is set aside unread
 
 LatLon = tuple[float, float]
 
@@ -102,8 +114,12 @@ class ParamSpec:
         """The value as it would be stored (int for INT32, float for REAL32); ParamError when it is not a
         finite number, not integral for an INT32, or out of range."""
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ParamError(f"{self.name}: {value!r} is not a number")
-        v = float(value)
+            raise ParamError(f"{self.name}: {_short(value)} is not a number")
+        bounds = f"[{_fmt(self.minimum)}, {_fmt(self.maximum)}]"
+        try:
+            v = float(value)
+        except OverflowError:  # an int beyond float range (a JSON file can hold one)
+            raise ParamError(f"{self.name}: {_short(value)} out of range {bounds}") from None
         if not math.isfinite(v):
             raise ParamError(f"{self.name}: {value!r} is not finite")
         if self.kind == "int":
@@ -111,12 +127,20 @@ class ParamSpec:
                 raise ParamError(f"{self.name}: {value!r} is not an integer")
             v = round(v)
         if not self.minimum <= v <= self.maximum:
-            raise ParamError(f"{self.name}: {value!r} out of range [{_fmt(self.minimum)}, {_fmt(self.maximum)}]")
+            raise ParamError(f"{self.name}: {_short(value)} out of range {bounds}")
         return int(v) if self.kind == "int" else float(v)
 
 
 def _fmt(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else repr(float(x))
+
+
+def _short(value: object, limit: int = 40) -> str:
+    """repr(value), cut to `limit` characters (a hostile file's values can be megabytes long)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
+        return f"<integer of about {int(value.bit_length() * 0.30103)} digits>"  # repr() of it may be refused
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _action_doc(what: str) -> str:
@@ -153,11 +177,11 @@ ChangeCallback = Callable[[str, float | int, float | int], None]
 def validate_latlon(point: object, what: str = "point") -> LatLon:
     """(lat, lon) in degrees as floats; ParamError unless a finite pair within [-90, 90] x [-180, 180]."""
     if isinstance(point, str | bytes):
-        raise ParamError(f"{what}: {point!r} is not a (lat, lon) pair")
+        raise ParamError(f"{what}: {_short(point)} is not a (lat, lon) pair")
     try:
         lat, lon = (float(v) for v in point)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        raise ParamError(f"{what}: {point!r} is not a (lat, lon) pair") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ParamError(f"{what}: {_short(point)} is not a (lat, lon) pair of finite numbers") from None
     if not (math.isfinite(lat) and math.isfinite(lon)):
         raise ParamError(f"{what}: ({lat}, {lon}) is not finite")
     if not -90.0 <= lat <= 90.0:
@@ -197,6 +221,8 @@ class ParameterStore:
 
     def __init__(self, path: str | os.PathLike[str] | None = None, *, specs: Sequence[ParamSpec] = PARAMS) -> None:
         self.path = Path(path) if path is not None else None
+        if self.path is not None and self.path.name in ("", ".", ".."):
+            raise ParamError(f"parameter file {str(path)!r}: give a file name, not a directory")
         self._specs = {s.name: s for s in specs}
         self._order = [s.name for s in specs]
         self._values: dict[str, float | int] = {s.name: s.check(s.default) for s in specs}
@@ -208,6 +234,7 @@ class ParameterStore:
         self.load_problem: str | None = None
         self.persist_error: str | None = None
         if self.path is not None:
+            self.remove_stale_temporaries()
             self.load()
 
     # -- reading -------------------------------------------------------------------------------------------
@@ -364,16 +391,19 @@ class ParameterStore:
             return
         self.load_problem = None
         try:
-            text = self.path.read_text(encoding="utf-8")
+            raw = read_small_file(self.path, MAX_FILE_BYTES)
         except FileNotFoundError:
             return
-        except (OSError, UnicodeDecodeError) as exc:
-            self._corrupt(f"cannot be read: {exc}", rename=not isinstance(exc, OSError))
+        except UnreadableFileError as exc:
+            self._corrupt(str(exc))
             return
         try:
-            values, goals, fence = self._parse(text)
-        except (ParamError, ValueError) as exc:
-            self._corrupt(str(exc), rename=True)
+            values, goals, fence = self._parse(raw.decode("utf-8"))
+        except ParamError as exc:
+            self._corrupt(str(exc))
+            return
+        except Exception as exc:  # RecursionError, MemoryError, UnicodeDecodeError, ...: any is a bad file
+            self._corrupt(describe_parse_error(exc))
             return
         with self._lock:
             self._values.update(values)
@@ -394,14 +424,20 @@ class ParameterStore:
         if not isinstance(params, dict):
             raise ParamError("'params' is not an object")
         values: dict[str, float | int] = {}
+        unknown: list[str] = []
         for name, value in params.items():
             spec = self._specs.get(name)
             if spec is None:
-                logger.warning("parameter file %s: unknown parameter %r ignored", self.path, name)
+                unknown.append(name)
                 continue
             if spec.kind == "int" and not (isinstance(value, int) and not isinstance(value, bool)):
-                raise ParamError(f"{name}: {value!r} is not an integer")
+                raise ParamError(f"{name}: {_short(value)} is not an integer")
             values[name] = spec.check(value)
+        if unknown:  # one line, however many (a newer version's parameters, or junk)
+            shown = ", ".join(_short(n) for n in unknown[:10])
+            if len(unknown) > 10:
+                shown += f" and {len(unknown) - 10} more"
+            logger.warning("parameter file %s: unknown parameter(s) %s ignored", self.path, shown)
         for key in ("goals", "fence"):
             if not isinstance(doc.get(key, []), list):
                 raise ParamError(f"{key!r} is not a list")
@@ -409,19 +445,42 @@ class ParameterStore:
         fence = _check_fence(doc.get("fence", []))
         return values, goals, fence
 
-    def _corrupt(self, problem: str, *, rename: bool) -> None:
+    def _corrupt(self, problem: str) -> None:
+        """Report the file, rename it aside (whatever it is: file, directory, FIFO) and keep the defaults."""
         assert self.path is not None
-        where = ""
-        if rename:
-            aside = _aside_name(self.path)
-            try:
-                os.replace(self.path, aside)
-                where = f"; moved to {aside}"
-            except OSError as exc:
-                where = f"; could not move it aside: {exc}"
-        state = "is corrupt" if rename else "cannot be used"
-        self.load_problem = f"parameter file {self.path} {state} ({problem}){where}; using defaults"
+        aside = _aside_name(self.path)
+        try:
+            os.replace(self.path, aside)
+            where = f"; moved to {aside}"
+        except OSError as exc:
+            where = f"; could not move it aside ({exc.strerror or exc}): fix or remove it by hand"
+        self.load_problem = f"parameter file {self.path} is corrupt ({problem}){where}; using defaults"
         logger.warning("%s", self.load_problem)
+
+    def remove_stale_temporaries(self) -> list[Path]:
+        """Delete the temporary files (`.<name>.XXXXXXXX.tmp`, regular files only) that interrupted atomic
+        writes of `path` left behind; returns what was removed. Called at start; safe to call again."""
+        if self.path is None:
+            return []
+        pattern = re.compile(rf"\.{re.escape(self.path.name)}\.[A-Za-z0-9_]+\.tmp")
+        removed: list[Path] = []
+        try:
+            entries = list(os.scandir(self.path.parent))
+        except OSError:
+            return removed  # no directory yet (or not listable): nothing of ours to clean
+        for entry in entries:
+            if not pattern.fullmatch(entry.name):
+                continue
+            try:
+                if not stat.S_ISREG(entry.stat(follow_symlinks=False).st_mode):
+                    continue
+                os.unlink(entry.path)
+            except OSError as exc:
+                logger.warning("parameter file %s: cannot remove leftover %s: %s", self.path, entry.path, exc)
+                continue
+            removed.append(Path(entry.path))
+            logger.warning("parameter file %s: removed %s left by an interrupted write", self.path, entry.path)
+        return removed
 
 
 def _aside_name(path: Path) -> Path:

@@ -214,7 +214,8 @@ class Vessel:
         self.frame = LocalFrame(*c.origin)
         fresh = c.params_file is None or not Path(c.params_file).exists()
         self.params = ParameterStore(c.params_file)
-        if fresh:  # a new vessel starts from its configured behaviour; later the stored parameters rule
+        if fresh or self.params.load_problem:  # a new vessel (or one whose file was set aside as corrupt)
+            # starts from its configured behaviour; later the stored parameters rule
             self.params.set_many(behavior_params(c.behavior, self.frame))
             goal = c.behavior.params.get("goal")
             if goal is not None:
