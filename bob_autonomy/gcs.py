@@ -205,15 +205,19 @@ class GcsComponent(MissionProtocol):
         """BOB_FENCE_EN is 1 and a polygon of at least 3 vertices is set."""
         return bool(self.params.get("BOB_FENCE_EN")) and len(self.fence) >= 3
 
-    def receive(self, data: bytes, *, datagram: bool = False) -> None:
+    def receive(self, data: bytes, *, datagram: bool = False) -> int:
         """Handle received bytes (any chunking; `datagram=True` when `data` is one whole UDP datagram).
-        Never raises: bad input and handler failures are counted."""
+        Never raises: bad input and handler failures are counted. Returns how many frames passed the checks
+        with the link's credentials (signed with the key when there is one): only then may the process
+        make the sender a peer of its link (`Link.confirm_peer`)."""
+        before = self.counters.authenticated
         for msg in self.codec.decode(data, datagram=datagram):
             try:
                 self._handle(msg)
             except Exception:
                 self.counters.handler_errors += 1
                 logger.exception("error handling %s", msg.get_type())
+        return self.counters.authenticated - before
 
     def outgoing(self) -> list[bytes]:
         """The frames to send since the last call (each one MAVLink frame), oldest first."""

@@ -6,9 +6,11 @@ is accepted only if it is signed with the key (SHA-256 of key + frame, first 48 
 newer than the last one accepted from the same (link id, system, component); a stream not seen before must
 not be more than 60 s older than our own clock. Unsigned (`unsigned_rejected`), wrongly signed
 (`bad_signature`) and replayed or stale (`replay_rejected`) frames are counted and dropped. RADIO_STATUS and
-RADIO, which telemetry radios inject unsigned, are let through as MAVProxy does. The signature is checked
-before the timestamp is recorded, so a forged frame cannot advance a stream. Without a key everything
-well-formed is accepted, signed or not (signatures then unchecked).
+RADIO, which telemetry radios inject unsigned, are let through as MAVProxy does, but are not counted as
+`authenticated`: only frames that carried the key (every accepted frame when there is none) are, and only
+they may make their sender a peer of a link (`firmware_bridge.links.UdpLink.confirm_peer`). The signature
+is checked before the timestamp is recorded, so a forged frame cannot advance a stream. Without a key
+everything well-formed is accepted, signed or not (signatures then unchecked).
 """
 
 from __future__ import annotations
@@ -98,7 +100,8 @@ def signing_timestamp(unix_time_s: float) -> int:
 class GcsCounters:
     """What a codec / component has seen. Frames: every complete candidate frame (`frames`) is exactly one
     of `accepted`, `malformed` (bad checksum, header, length or payload), `unknown_id` (a message id the
-    dialect does not know), `unsigned_rejected`, `bad_signature`, `replay_rejected`. `skipped_bytes` is
+    dialect does not know), `unsigned_rejected`, `bad_signature`, `replay_rejected`; `authenticated` counts
+    the accepted frames that carried the key (all of them without a key). `skipped_bytes` is
     noise between frames. The component adds what it did with accepted messages; `out_of_range` counts the
     messages it refused for a value that is not finite or outside its field's range (bob_autonomy.gcs_checks).
     `SECURITY` names the counters an operator should see (logged and reported by process fleets)."""
@@ -108,6 +111,7 @@ class GcsCounters:
     bytes_received: int = 0
     frames: int = 0
     accepted: int = 0
+    authenticated: int = 0
     malformed: int = 0
     unknown_id: int = 0
     skipped_bytes: int = 0
@@ -249,6 +253,8 @@ class MavlinkCodec:
                 setattr(c, rejection, getattr(c, rejection) + 1)
                 continue
             c.accepted += 1
+            if self.signing_key is None or (magic == _V2 and frame[2] & _SIGNED):
+                c.authenticated += 1
             messages.append(msg)
         del buf[:pos]
 

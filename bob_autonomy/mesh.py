@@ -167,19 +167,23 @@ class LinkMesh:
         states: list[AgentState] = []
         while True:
             try:
-                data = self.link.read(65535, 0.0)
+                data, sender = self.link.read_from(65535, 0.0)
             except OSError as error:
                 logger.warning("mesh read failed: %s", error)
                 break
             if not data:
                 break
+            valid = False
             for packet in self.reader.feed(data):
                 try:
                     state = decode_state(packet, self.fields)
                 except PacketError:
                     self.invalid += 1
                     continue
+                valid = True
                 if state.agent_id != self.agent_id:
                     self.received += 1
                     states.append(state)
+            if valid:
+                self.link.confirm_peer(sender)  # a udpin mesh link answers only senders of valid packets
         return states

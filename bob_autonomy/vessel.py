@@ -320,14 +320,15 @@ class Vessel:
         gcs, link = self.gcs, self.gcs_link
         while link is not None:
             try:
-                data = link.read(65535, 0.0)
+                data, sender = link.read_from(65535, 0.0)
             except LinkError as error:
                 self.stats.link_errors += 1
                 logger.warning("ground-station link read failed: %s", error)
                 break
             if not data:
                 break
-            gcs.receive(data, datagram=True)
+            if gcs.receive(data, datagram=True):  # frames passed the checks (signature when keyed): answer it
+                link.confirm_peer(sender)
         for command in gcs.take_autopilot_commands():
             if command.kind in ("arm", "disarm"):
                 self._send(self.vehicle.arm(command.kind == "arm"))

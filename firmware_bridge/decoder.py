@@ -172,6 +172,35 @@ def classify_frame(frame: bytearray, mav: mavlink.MAVLink, followed: bool) -> tu
         return "malformed", None
 
 
+MAX_CANDIDATES = 32  # start markers examined by contains_mavlink_frame before it gives up (bounded work)
+_CHECK_MAV = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
+
+
+def contains_mavlink_frame(data: bytes) -> bool:
+    """Whether `data` (e.g. one UDP datagram) holds at least one complete MAVLink frame of a message the
+    dialect knows, with the right checksum. Signatures are not checked. Looks at the first MAX_CANDIDATES
+    start markers only, so that a datagram of markers costs little; a real datagram starts with its frame."""
+    buf = bytearray(data)
+    n = len(buf)
+    pos = 0
+    for _ in range(MAX_CANDIDATES):
+        start = next_marker(buf, pos)
+        if start < 0 or n - start < 3:
+            return False
+        length = _HEADER_LEN[buf[start]] + buf[start + 1] + 2
+        if buf[start] == _V2 and buf[start + 2] & _SIGNED:
+            length += _SIGNATURE_LEN
+        if start + length <= n:
+            try:
+                verdict, _ = classify_frame(bytearray(buf[start : start + length]), _CHECK_MAV, followed=True)
+            except Exception:  # pragma: no cover - defensive: classify_frame catches decoding errors
+                verdict = "malformed"
+            if verdict == "ok":
+                return True
+        pos = start + 1
+    return False
+
+
 class TelemetryDecoder:
     """Bytes in, typed readings out, for one vehicle (readings carry `agents = [agent]`).
 

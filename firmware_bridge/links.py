@@ -1,13 +1,25 @@
 """Byte links to an autopilot: UDP (in/out), TCP and serial ports.
 
-    link = open_link("udpin:0.0.0.0:14550")        # listen; replies go to the last sender
-    link = open_link("udpout:192.168.1.10:14550")  # send to an address; replies come back to our port
+    link = open_link("udpin:0.0.0.0:14550")        # listen; replies go to every live, confirmed peer
+    link = open_link("udpout:192.168.1.10:14550")  # send to an address; only that address is heard
     link = open_link("tcp:127.0.0.1:5760")         # connect (e.g. to SITL)
     link = open_link("/dev/ttyUSB0", baud=57600)   # serial (pyserial); also COM3 on Windows
 
 Every link has `write(data)`, `read(max_bytes=4096, timeout_s=0.0) -> bytes` (waits at most timeout_s,
 returns b"" when nothing came) and `close()`, and is a context manager. Errors opening or using a link
-are `LinkError`s naming the connection string.
+are `LinkError`s naming the connection string. `read_from` also says who sent the bytes (a UDP address;
+None on a stream), and `confirm_peer(sender)` makes a udpin sender a peer (a no-op elsewhere).
+
+Who a UDP link talks to (issue 17: one datagram must not take a link over):
+
+- udpin: writes go to every *peer*: an address that was confirmed and has been heard from, confirmed,
+  within `peer_timeout_s` (10 s). No datagram moves the reply address by itself. A caller that
+  authenticates what it reads (`bob_autonomy.gcs`, with MAVLink 2 signing) uses `read_from` and confirms
+  a sender only when its frames passed those checks; plain `read` confirms a sender whose datagram holds
+  at least one well-formed MAVLink frame (a known message with the right checksum,
+  `firmware_bridge.decoder.contains_mavlink_frame`). Datagrams from others are still returned (the caller
+  decides what to make of them) and counted in `unconfirmed`.
+- udpout: a datagram from any address but the one we send to is dropped and counted in `foreign`.
 """
 
 from __future__ import annotations
@@ -16,10 +28,28 @@ import re
 import select
 import socket
 import sys
+import time
+from collections.abc import Callable
 
 import serial
 
-__all__ = ["Link", "LinkError", "SerialLink", "TcpLink", "UdpLink", "open_link", "parse_connection_string"]
+from firmware_bridge.decoder import contains_mavlink_frame
+
+__all__ = [
+    "PEER_TIMEOUT_S",
+    "Link",
+    "LinkError",
+    "SerialLink",
+    "TcpLink",
+    "UdpLink",
+    "open_link",
+    "parse_connection_string",
+]
+
+PEER_TIMEOUT_S = 10.0  # a udpin peer not confirmed again for this long (s) is no longer written to
+MAX_FOREIGN_PER_READ = 64  # udpout: foreign datagrams skipped in one read before it returns b""
+
+Address = tuple[str, int]
 
 
 class LinkError(OSError):
@@ -71,6 +101,14 @@ class Link:
     def read(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> bytes:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def read_from(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> tuple[bytes, Address | None]:
+        """Like `read`, with the sender's address (None on a stream link, which has one peer)."""
+        return self.read(max_bytes, timeout_s), None
+
+    def confirm_peer(self, sender: Address | None) -> None:
+        """The caller vouches for `sender` (its frames passed the caller's checks): a udpin link writes to it
+        from now on. Nothing to do on a link with one fixed peer."""
+
     def close(self) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
@@ -87,47 +125,107 @@ def _wait_readable(sock: socket.socket, timeout_s: float) -> bool:
 
 
 class UdpLink(Link):
-    """udpin binds HOST:PORT and answers whoever sent last; udpout sends to HOST:PORT from an ephemeral port."""
+    """udpin binds HOST:PORT and answers its live confirmed peers; udpout sends to HOST:PORT from an ephemeral port
+    and hears only HOST:PORT (see the module docstring). clock: monotonic seconds, for peer expiry."""
 
-    def __init__(self, connection: str, kind: str, host: str, port: int) -> None:
+    def __init__(
+        self,
+        connection: str,
+        kind: str,
+        host: str,
+        port: int,
+        *,
+        peer_timeout_s: float = PEER_TIMEOUT_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.connection = connection
         self.kind = kind
+        self.peer_timeout_s = float(peer_timeout_s)
+        self.clock = clock
+        self.peers: dict[Address, float] = {}  # udpin: confirmed address -> when last confirmed (clock s)
+        self.destination: Address | None = None  # udpout: the one address written to and heard
+        self.foreign = 0  # udpout: datagrams from another address, dropped
+        self.unconfirmed = 0  # udpin (read): datagrams whose sender did not become a peer
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if kind == "udpin":
                 self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 self.sock.bind((host, port))
-                self.peer: tuple[str, int] | None = None
             else:
-                self.peer = (socket.gethostbyname(host), port)
+                address = socket.gethostbyname(host)
+                # Sending to 0.0.0.0 reaches this host, whose answers come from 127.0.0.1.
+                self.destination = ("127.0.0.1" if address == "0.0.0.0" else address, port)
         except OSError as exc:
             self.sock.close()
             raise LinkError(f"cannot open {connection!r}: {exc}") from exc
 
     @property
-    def local_address(self) -> tuple[str, int]:
+    def local_address(self) -> Address:
         return self.sock.getsockname()
 
+    @property
+    def peer(self) -> Address | None:
+        """udpout: the destination; udpin: the live peer confirmed most recently (None if none)."""
+        if self.destination is not None:
+            return self.destination
+        live = self.live_peers()
+        return max(live, key=self.peers.__getitem__) if live else None
+
+    def live_peers(self) -> list[Address]:
+        """The addresses written to: udpin peers confirmed within peer_timeout_s (older ones are forgotten),
+        or the udpout destination."""
+        if self.destination is not None:
+            return [self.destination]
+        now = float(self.clock())
+        for address in [a for a, t in self.peers.items() if now - t > self.peer_timeout_s]:
+            del self.peers[address]
+        return list(self.peers)
+
+    def confirm_peer(self, sender: Address | None) -> None:
+        if self.kind == "udpin" and sender is not None:
+            self.peers[(str(sender[0]), int(sender[1]))] = float(self.clock())
+
     def write(self, data: bytes) -> None:
-        if self.peer is None:
-            return  # udpin: nobody has spoken to us yet, so there is no one to answer
-        try:
-            self.sock.sendto(bytes(data), self.peer)
-        except OSError as exc:
-            raise LinkError(f"cannot write to {self.connection!r}: {exc}") from exc
+        """Send `data` to every live peer (udpin: nobody confirmed yet means no one to answer)."""
+        errors = []
+        peers = self.live_peers()
+        for address in peers:
+            try:
+                self.sock.sendto(bytes(data), address)
+            except OSError as exc:
+                errors.append(f"{address[0]}:{address[1]}: {exc}")
+        if errors and len(errors) == len(peers):
+            raise LinkError(f"cannot write to {self.connection!r}: {'; '.join(errors)}")
+
+    def read_from(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> tuple[bytes, Address | None]:
+        """One datagram (cut to max_bytes) and its sender, waiting at most timeout_s; (b"", None) if none.
+        udpout: datagrams from anywhere but the destination are dropped and counted (`foreign`)."""
+        deadline = time.monotonic() + max(0.0, float(timeout_s))
+        for _ in range(MAX_FOREIGN_PER_READ):
+            try:
+                if not _wait_readable(self.sock, deadline - time.monotonic()):
+                    return b"", None
+                data, sender = self.sock.recvfrom(max(max_bytes, 65535))
+            except ConnectionRefusedError:
+                return b"", None  # an ICMP "port unreachable" from an earlier send: nothing to read
+            except OSError as exc:
+                raise LinkError(f"cannot read from {self.connection!r}: {exc}") from exc
+            if self.destination is not None and sender != self.destination:
+                self.foreign += 1
+                continue
+            return (data[:max_bytes] if len(data) > max_bytes else data), sender
+        return b"", None
 
     def read(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> bytes:
-        try:
-            if not _wait_readable(self.sock, timeout_s):
-                return b""
-            data, sender = self.sock.recvfrom(max(max_bytes, 65535))
-        except ConnectionRefusedError:
-            return b""  # an ICMP "port unreachable" from an earlier send: nothing to read
-        except OSError as exc:
-            raise LinkError(f"cannot read from {self.connection!r}: {exc}") from exc
-        if self.kind == "udpin":
-            self.peer = sender
-        return data[:max_bytes] if len(data) > max_bytes else data
+        """One datagram (see read_from). udpin: a sender not yet a peer becomes one if the datagram holds a
+        well-formed MAVLink frame; otherwise it is counted in `unconfirmed`."""
+        data, sender = self.read_from(max_bytes, timeout_s)
+        if data and self.kind == "udpin":
+            if contains_mavlink_frame(data):
+                self.confirm_peer(sender)  # a new peer, or a peer still alive
+            elif sender not in self.peers:
+                self.unconfirmed += 1
+        return data
 
     def close(self) -> None:
         self.sock.close()

@@ -185,7 +185,7 @@ FLOAT32 = st.integers(0, 2**32 - 1).map(lambda bits: struct.unpack("<f", struct.
 SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1.0, 21196.0, HUGE, 4.0, 2.0**32, LAT, LON])
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=300, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     command=st.sampled_from([*COMMANDS, 0, 65535]),
     params=st.lists(st.one_of(FLOAT32, SPECIAL), min_size=7, max_size=7),
@@ -229,7 +229,7 @@ def test_param_set_of_every_parameter_refuses_nan_inf_and_huge(value) -> None:
     assert component.counters.handler_errors == 0 and component.counters.params_set == 0
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200, deadline=None, database=None)
 @given(index=st.integers(0, 100), value=st.one_of(FLOAT32, SPECIAL))
 def test_any_param_set_answers_the_value_in_force_which_is_finite(index, value) -> None:
     component, gcs = make_component()
@@ -348,7 +348,7 @@ def test_mission_download_of_an_item_that_does_not_exist_is_refused(legacy) -> N
     assert ack.type == C.MAV_MISSION_INVALID_SEQUENCE and component.counters.out_of_range == 1
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200, deadline=None, database=None)
 @given(
     mission_type=st.sampled_from([WAYPOINT, FENCE, RALLY]),
     legacy=st.booleans(),
