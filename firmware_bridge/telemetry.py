@@ -52,14 +52,22 @@ class TelemetryEncoder:
         self.encoder = Encoder(system_id, component_id)
         self.mav = self.encoder.mav
 
-    def heartbeat(self, mav_type: int, armed: bool, custom_mode: int = 0) -> bytes:
-        """HEARTBEAT of an ArduPilot vehicle (custom mode enabled; armed flag as given)."""
-        base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    def pack(self, message) -> bytes:
+        """Any pymavlink message as one frame from this vehicle (protocol replies: PARAM_VALUE, MISSION_*)."""
+        return self.encoder.pack(message)
+
+    def heartbeat(
+        self, mav_type: int, armed: bool, custom_mode: int = 0, *, base_flags: int = 0, state: int | None = None
+    ) -> bytes:
+        """HEARTBEAT of an ArduPilot vehicle: custom mode enabled, the armed flag, extra MAV_MODE_FLAGs (`base_flags`),
+        system status `state` (default: ACTIVE when armed, else STANDBY)."""
+        base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | int(base_flags)
         if armed:
             base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        state = mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
+        if state is None:
+            state = mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
         message = self.mav.heartbeat_encode(
-            mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base_mode, custom_mode, state
+            mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base_mode & 0xFF, int(custom_mode), state
         )
         return self.encoder.pack(message)
 
@@ -95,15 +103,24 @@ class TelemetryEncoder:
         return self.encoder.pack(message)
 
     def global_position_int(
-        self, t_s: float, lat_deg: float, lon_deg: float, velocity_mps: Sequence[float] | None = None
+        self,
+        t_s: float,
+        lat_deg: float,
+        lon_deg: float,
+        velocity_mps: Sequence[float] | None = None,
+        heading_rad: float | None = None,
     ) -> bytes:
         """GLOBAL_POSITION_INT (what ground stations show as the position): lat/lon degE7, altitude 0, ground
-        velocity north/east cm/s (0 when unknown), heading unknown (UINT16_MAX)."""
+        velocity north/east cm/s (0 when unknown), heading cdeg 0..35999 from our heading (from east, CCW), as
+        ArduPilot sends its AHRS yaw (GCS_Common.cpp send_global_position_int); UINT16_MAX when unknown."""
         east, north = 0.0, 0.0
         if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
+        hdg = UINT16_MAX
+        if heading_rad is not None and math.isfinite(heading_rad):
+            hdg = round(math.degrees(yaw_from_heading(heading_rad)) * 100.0) % 36000
         message = self.mav.global_position_int_encode(
-            _ms(t_s), round(lat_deg * 1e7), round(lon_deg * 1e7), 0, 0, _cm_s(north), _cm_s(east), 0, UINT16_MAX
+            _ms(t_s), round(lat_deg * 1e7), round(lon_deg * 1e7), 0, 0, _cm_s(north), _cm_s(east), 0, hdg
         )
         return self.encoder.pack(message)
 
@@ -152,10 +169,80 @@ class TelemetryEncoder:
         )
         return self.encoder.pack(message)
 
-    def wheel_distance(self, t_s: float, distance_m: Sequence[float]) -> bytes:
-        """WHEEL_DISTANCE with two wheels (left, right), cumulative metres."""
+    def raw_imu(self, t_s: float, accel_body_mps2: Sequence[float], gyro_z_radps: float) -> bytes:
+        """RAW_IMU as ArduPilot fills it (GCS_Common.cpp send_raw_imu: mG and mrad/s, FRD), from our level IMU."""
+        to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
+        message = self.mav.raw_imu_encode(
+            _usec(t_s), _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), -1000,
+            0, 0, _int16(-gyro_z_radps * 1000.0), 0, 0, 0, 0, 0,
+        )  # fmt: skip
+        return self.encoder.pack(message)
+
+    def wheel_distance(self, t_s: float, distance_m: Sequence[float], count: int = 2) -> bytes:
+        """WHEEL_DISTANCE with `count` wheels (left, right), cumulative metres."""
         distances = [float(distance_m[0]), float(distance_m[1])] + [0.0] * 14
-        return self.encoder.pack(self.mav.wheel_distance_encode(_usec(t_s), 2, distances))
+        return self.encoder.pack(self.mav.wheel_distance_encode(_usec(t_s), int(count), distances))
+
+    def rc_channels(self, t_s: float, pwm_us: Sequence[int], channel_count: int) -> bytes:
+        """RC_CHANNELS: the autopilot's RC inputs (us; 0 = none), 18 channels, RSSI unknown (255)."""
+        values = [max(0, min(UINT16_MAX, int(v))) for v in list(pwm_us)[:18]] + [0] * max(0, 18 - len(pwm_us))
+        return self.encoder.pack(self.mav.rc_channels_encode(_ms(t_s), int(channel_count), *values, 255))
+
+    def servo_output_raw(self, t_s: float, pwm_us: Sequence[int]) -> bytes:
+        """SERVO_OUTPUT_RAW: the outputs SERVO1..16 (us; 0 = no output)."""
+        values = [max(0, min(UINT16_MAX, int(v))) for v in list(pwm_us)[:16]] + [0] * max(0, 16 - len(pwm_us))
+        return self.encoder.pack(self.mav.servo_output_raw_encode(_usec(t_s) & 0xFFFFFFFF, 0, *values))
+
+    def home_position(self, t_s: float, lat_e7: int, lon_e7: int, alt_m: float = 0.0) -> bytes:
+        """HOME_POSITION as ArduPilot sends it (GCS_Common.cpp send_home_position): lat/lon degE7, altitude mm,
+        local position 0 (home is the origin here), q NaN, approach 0."""
+        nan = math.nan
+        message = self.mav.home_position_encode(
+            int(lat_e7), int(lon_e7), round(alt_m * 1000.0), 0.0, 0.0, 0.0, [nan] * 4, 0.0, 0.0, 0.0, _usec(t_s)
+        )
+        return self.encoder.pack(message)
+
+    def autopilot_version(
+        self, capabilities: int, flight_sw_version: int, custom_version: bytes, uid: int
+    ) -> bytes:
+        """AUTOPILOT_VERSION (GCS_Common.cpp send_autopilot_version): capabilities bitmask, the firmware version
+        (major << 24 | minor << 16 | patch << 8 | type), the git hash's first 8 bytes, a unique id."""
+        custom = list(bytes(custom_version)[:8].ljust(8, b"\0"))
+        message = self.mav.autopilot_version_encode(
+            int(capabilities), int(flight_sw_version), 0, 0, 0, custom, [0] * 8, [0] * 8, 0, 0, int(uid), [0] * 18
+        )
+        return self.encoder.pack(message)
+
+    def statustext(self, severity: int, text: str) -> bytes:
+        """STATUSTEXT (at most 50 characters, as ArduPilot truncates)."""
+        raw = text.encode("ascii", "replace")[:50]
+        return self.encoder.pack(self.mav.statustext_encode(int(severity), raw, 0, 0))
+
+    def battery_status(self, voltage_v: float, remaining_pct: float) -> bytes:
+        """BATTERY_STATUS of battery 0 with the pack voltage in the first cell slot (mV), as ArduPilot reports a
+        monitor without cell voltages; NaN reports unknown."""
+        voltage = UINT16_MAX if not math.isfinite(voltage_v) else min(UINT16_MAX - 1, round(voltage_v * 1000.0))
+        remaining = -1 if not math.isfinite(remaining_pct) else round(remaining_pct)
+        cells = [voltage] + [UINT16_MAX] * 9
+        message = self.mav.battery_status_encode(0, 0, 0, 32767, cells, -1, -1, -1, remaining)
+        return self.encoder.pack(message)
+
+    def vfr_hud(self, groundspeed_mps: float, heading_rad: float | None, throttle_pct: float) -> bytes:
+        """VFR_HUD: ground speed m/s, heading deg 0..359 from our heading, throttle %."""
+        heading = 0
+        if heading_rad is not None and math.isfinite(heading_rad):
+            heading = round(math.degrees(yaw_from_heading(heading_rad))) % 360
+        speed = float(groundspeed_mps) if math.isfinite(groundspeed_mps) else 0.0
+        throttle = round(throttle_pct) if math.isfinite(throttle_pct) else 0
+        return self.encoder.pack(self.mav.vfr_hud_encode(speed, speed, heading, throttle, 0.0, 0.0))
+
+    def system_time(self, t_s: float, unix_time_s: float = 0.0) -> bytes:
+        """SYSTEM_TIME: Unix time us (0 when unknown) and time since boot ms."""
+        return self.encoder.pack(self.mav.system_time_encode(max(0, int(unix_time_s * 1e6)), _ms(t_s)))
+
+    def message_interval(self, message_id: int, interval_us: int) -> bytes:
+        """MESSAGE_INTERVAL (reply to MAV_CMD_GET_MESSAGE_INTERVAL): -1 = off, 0 = not available."""
+        return self.encoder.pack(self.mav.message_interval_encode(int(message_id) & 0xFFFF, int(interval_us)))
 
     def sys_status(self, voltage_v: float, remaining_pct: float) -> bytes:
         """SYS_STATUS with the battery voltage (V) and remaining charge (%); NaN reports unknown."""

@@ -25,6 +25,7 @@ mavlink_connection(path)` and `mavlogdump.py` read it.
 
 from __future__ import annotations
 
+import logging
 import select
 import socket
 import time
@@ -43,6 +44,8 @@ PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
 EBOT_SONAR_RANGE_M = BODY_SPECS[EBOT_KIND].range_max_m
 PEER_TIMEOUT_S = 5.0  # wall seconds: a peer that has sent nothing for this long no longer gets telemetry
 _UINT16_MAX = 65535
+MAX_LOGGED_ERRORS = 20  # per vehicle: the rest are only counted
+log = logging.getLogger(__name__)
 
 
 def vehicle_port(index: int, base_port: int = DEFAULT_BASE_PORT) -> int:
@@ -68,6 +71,7 @@ class VehicleEndpoint:
         self.address = self.sock.getsockname()
         self.peers: dict[tuple[str, int], float] = {}  # address -> wall time last heard (time.monotonic)
         self.bytes_in = self.bytes_out = 0
+        self.errors = 0  # datagrams whose handling raised (logged, skipped)
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -92,12 +96,20 @@ class VehicleEndpoint:
                 continue
             count += 1
             self.bytes_in += len(data)
-            self.peers[sender] = time.monotonic()
-            if self.tlog is not None:
-                self.tlog.write(data)
-            replies = self.vehicle.receive(data, t_s)
-            if replies:
-                self._send_to(replies, [sender])
+            try:
+                self.peers[sender] = time.monotonic()
+                if self.tlog is not None:
+                    self.tlog.write(data)
+                replies = self.vehicle.receive(data, t_s)
+                if replies:
+                    self._send_to(replies, [sender])
+            except Exception as error:  # one bad datagram must never end the fleet (#17): count, log, go on
+                self.errors += 1
+                if self.errors <= MAX_LOGGED_ERRORS:
+                    log.warning(
+                        "vehicle %d: datagram of %d bytes from %s:%d not handled (%s: %s); going on",
+                        self.vehicle.system_id, len(data), sender[0], sender[1], type(error).__name__, error,
+                    )
 
     def send(self, data: bytes) -> None:
         """Send telemetry to every live peer (logged once)."""
@@ -124,8 +136,11 @@ class VehicleServer:
 
     kinds: "buoy" or "ebot" per vehicle (fleet row order). max_actuators: full-scale thrust (N) or wheel speed
     (m/s) per vehicle, what RC 1900 us stands for. metres_per_tick: eBot wheel travel per encoder tick, m.
-    failsafe_s: simulated seconds without a command after which a vehicle stops its actuators. armed: the
-    vehicles' state at start (False: the autonomy arms them). tlog: where every frame is logged (or None).
+    failsafe_s: simulated seconds without a command after which a vehicle stops its actuators (its
+    RC_OVERRIDE_TIME). armed: the vehicles' state at start (False: the autonomy arms them). tlog: where every frame
+    is logged (or None). streams: "sensor-rate" (default for now: every reading sent as it comes, because
+    bob-autonomy does not yet ask for its streams) or "ardupilot" (ArduPilot Rover's 1 Hz stream defaults until
+    asked; sitl/mavlink_vehicle.py). vehicle_params: autopilot parameter values every vehicle starts with.
     """
 
     def __init__(
@@ -139,6 +154,8 @@ class VehicleServer:
         failsafe_s: float = 1.0,
         armed: bool = False,
         tlog: TlogWriter | None = None,
+        streams: str = "sensor-rate",
+        vehicle_params: dict[str, float] | None = None,
     ) -> None:
         self.kinds = list(kinds)
         self.metres_per_tick = float(metres_per_tick)
@@ -146,7 +163,9 @@ class VehicleServer:
         self.endpoints: list[VehicleEndpoint] = []
         try:
             for i, (kind, limit) in enumerate(zip(self.kinds, max_actuators, strict=True)):
-                vehicle = SimulatedVehicle(i + 1, kind, limit, failsafe_s=failsafe_s, armed=armed)
+                vehicle = SimulatedVehicle(
+                    i + 1, kind, limit, failsafe_s=failsafe_s, armed=armed, streams=streams, params=vehicle_params
+                )
                 self.endpoints.append(VehicleEndpoint(vehicle, host, vehicle_port(i, base_port), tlog))
         except BaseException:
             self.close()
@@ -226,6 +245,7 @@ class VehicleServer:
                 totals[name] = totals.get(name, 0) + int(value)
             totals["bytes_in"] = totals.get("bytes_in", 0) + e.bytes_in
             totals["bytes_out"] = totals.get("bytes_out", 0) + e.bytes_out
+            totals["datagram_errors"] = totals.get("datagram_errors", 0) + e.errors
         return totals
 
     def close(self) -> None:

@@ -40,9 +40,10 @@ class DirectTransport:
 class MavlinkTransport:
     """n vehicles of one kind ("buoy" or "ebot"), system ids first_system_id.., talking MAVLink 2 bytes.
 
-    max_actuator: full-scale thrust (N) or wheel speed (m/s) that RC 1900 us stands for. metres_per_tick:
+    max_actuator: full-scale thrust (N) or wheel speed (m/s) that full RC deflection stands for. metres_per_tick:
     wheel travel per encoder tick (eBots report wheel travel in metres, as ArduPilot does). clock: the
-    simulated time (s) the vessels stamp readings with.
+    simulated time (s) the vessels stamp readings with. streams, vehicle_params: as `SimulatedVehicle`'s
+    streams and params ("sensor-rate" until the vessels ask for their streams).
     """
 
     def __init__(
@@ -55,10 +56,17 @@ class MavlinkTransport:
         first_system_id: int = 1,
         metres_per_tick: float = 1.0,
         failsafe_s: float = 1.0,
+        streams: str = "sensor-rate",
+        vehicle_params: dict[str, float] | None = None,
     ) -> None:
         self.metres_per_tick = metres_per_tick
+        # streams="sensor-rate" by default: the vessels here do not yet ask for their streams (ArduPilot's default
+        # would give them 1 Hz telemetry); see sitl/mavlink_vehicle.py.
         self.vehicles = [
-            SimulatedVehicle(first_system_id + k, kind, max_actuator, failsafe_s=failsafe_s, armed=True)
+            SimulatedVehicle(
+                first_system_id + k, kind, max_actuator, failsafe_s=failsafe_s, armed=True, streams=streams,
+                params=vehicle_params,
+            )
             for k in range(n)
         ]
         self.links = [VehicleLink(first_system_id + k, kind, max_actuator, clock, agent=k) for k in range(n)]

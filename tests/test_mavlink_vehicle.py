@@ -59,8 +59,13 @@ def test_rc_wheels_round_trip_within_one_pwm_step(wheels) -> None:
     np.testing.assert_allclose(commands.wheels_from_rc(msg, 0.2), wheels, atol=2 * 0.2 / 400)
 
 
+# No throttle slew, so that a command applies at once (MOT_SLEWRATE is tested in tests/test_autopilot_rc.py);
+# firmware_bridge.commands encodes RC as ArduPilot's default calibration reads it (30 us dead zone).
+LINEAR = {"MOT_SLEWRATE": 0}
+
+
 def _vehicle(**kw) -> SimulatedVehicle:
-    return SimulatedVehicle(2, "buoy", 45.0, failsafe_s=1.0, **kw)
+    return SimulatedVehicle(2, "buoy", 45.0, failsafe_s=1.0, params=LINEAR, **kw)
 
 
 def _acks(data: bytes) -> list:
@@ -85,13 +90,14 @@ def test_commands_for_others_or_from_a_stranger_are_not_obeyed() -> None:
     assert v.counters.other_target == 1 and v.counters.refused == 1 and not v.actuator(0.1).any()
 
 
-def test_hold_mode_stops_and_unknown_modes_are_refused() -> None:
+def test_hold_mode_stops_and_unsimulated_modes_are_refused() -> None:
     v = _vehicle(armed=True)
     v.receive(commands.rc_override_for_thrust((20.0, 0.0), 45.0, target_system=2), 0.0)
     (ack,) = _acks(v.receive(commands.set_mode("HOLD", target_system=2), 0.1))
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED and not v.actuator(0.2).any()
+    # AUTO exists in Rover but is not simulated: refused as Rover refuses a mode it cannot enter.
     (ack,) = _acks(v.receive(commands.set_mode("AUTO", target_system=2), 0.3))
-    assert ack.result == mavlink.MAV_RESULT_UNSUPPORTED
+    assert ack.result == mavlink.MAV_RESULT_FAILED and v.mode == 4
 
 
 def test_failsafe_stops_the_thruster_when_commands_stop() -> None:
@@ -117,7 +123,7 @@ def test_garbage_is_counted_never_raised() -> None:
 
 
 def test_housekeeping_once_a_second() -> None:
-    v = _vehicle()
+    v = _vehicle(streams="sensor-rate")
     assert v.housekeeping(0.0) and not v.housekeeping(0.5) and v.housekeeping(1.0)
     kinds = [m.get_type() for m in TelemetryDecoder().feed_messages(v.housekeeping(2.0))]
     assert kinds == ["HEARTBEAT", "SYS_STATUS"]

@@ -1,0 +1,170 @@
+"""RC input of the simulated autopilot: overrides, their expiry, scaling, the pilot's steering/throttle/lateral
+and the motor mixing, as ArduPilot Rover does them.
+
+- RC_CHANNELS_OVERRIDE is taken only from MAV_GCS_SYSID (libraries/GCS_MAVLink/GCS_Common.cpp
+  `handle_rc_channels_override`); channels 1-8: UINT16_MAX = leave alone, 0 = release; 9-18: 0 and UINT16_MAX
+  leave alone, UINT16_MAX-1 releases. An override counts for RC_OVERRIDE_TIME s (0: overrides disabled, negative:
+  never expire) (libraries/RC_Channel/RC_Channel.cpp `has_override`, RC_Channel.h `get_override_timeout_ms`).
+- Without an override a channel reads the receiver; with no receiver it keeps its last value (RC_Channel::update
+  returns early), and RC_Channels::read_input reports new input only when an override arrives.
+- Steering (RCMAP_ROLL), throttle (RCMAP_THROTTLE) and lateral (RCMAP_YAW) are "angle" inputs (Rover/radio.cpp
+  `set_control_channels`) scaled about RCx_TRIM with the dead zone RCx_DZ by `pwm_to_angle_dz_trim`
+  (RC_Channel.cpp), reversed by RCx_REVERSED.
+- Pilot input (Rover/mode.cpp `get_pilot_input`, `get_pilot_desired_steering_and_throttle`): zero under radio
+  failsafe; PILOT_STEER_TYPE 0 (default) and 2 flip steering when throttle is negative, 3 does not, 1 reads two
+  paddles; skid-steer and omni frames scale steering and throttle back together when |s| + |t| > 1; throttle is
+  slew-limited by MOT_SLEWRATE %/s (libraries/AR_Motors/AP_MotorsUGV.cpp `get_slew_limited_throttle`), and the
+  steering flips again if the limited throttle has the other sign.
+- Lateral moves only an omni frame (FRAME_TYPE != 0, AP_MotorsUGV::is_omni, `output_omni`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+UINT16_MAX = 65535
+OVERRIDE_CHANNELS = 18
+SKID_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
+# OmniX motor factors (throttle, steering, lateral): libraries/AR_Motors/AP_MotorsUGV.cpp setup_omni.
+OMNI_FACTORS = {
+    1: ((1.0, -1.0, -1.0), (0.0, -1.0, 1.0), (1.0, 1.0, 1.0)),
+    2: ((1.0, -1.0, -1.0), (1.0, -1.0, 1.0), (1.0, 1.0, -1.0), (1.0, 1.0, 1.0)),
+    3: ((0.0, 1.0, 1.0), (1.0, 0.0, 0.0), (0.0, -1.0, 1.0), (1.0, 0.0, 0.0)),
+    4: ((-1.0, 1.0, -0.26795), (0.73205, 1.0, -0.73205), (0.26795, 1.0, 1.0)),
+}
+
+
+def scale_angle(pwm: int, low: int, trim: int, high: int, dead_zone: int, reversed_: bool) -> float:
+    """An RC PWM as ArduPilot's angle input in [-1, 1] (RC_Channel::pwm_to_angle_dz_trim divided by its range)."""
+    r = min(high, max(low, int(pwm)))
+    top, bottom = trim + dead_zone, trim - dead_zone
+    sign = -1.0 if reversed_ else 1.0
+    if r > top and high != top:
+        return sign * (r - top) / (high - top)
+    if r < bottom and bottom != low:
+        return sign * (r - bottom) / (bottom - low)
+    return 0.0
+
+
+def norm_input_dz(pwm: int, low: int, trim: int, high: int, dead_zone: int, reversed_: bool) -> float:
+    """RC_Channel::norm_input_dz (used by the two-paddle steering type)."""
+    sign = -1.0 if reversed_ else 1.0
+    dz_min, dz_max = trim - dead_zone, trim + dead_zone
+    if pwm < dz_min and dz_min > low:
+        value = sign * (pwm - dz_min) / (dz_min - low)
+    elif pwm > dz_max and high > dz_max:
+        value = sign * (pwm - dz_max) / (high - dz_max)
+    else:
+        value = 0.0
+    return min(1.0, max(-1.0, value))
+
+
+@dataclass
+class RcInput:
+    """The autopilot's RC inputs: overrides with their time, the receiver (neutral sticks at each TRIM, or none)."""
+
+    receiver: bool = True
+    override: list[int] = field(default_factory=lambda: [0] * OVERRIDE_CHANNELS)
+    override_t: list[float] = field(default_factory=lambda: [-math.inf] * OVERRIDE_CHANNELS)
+    radio_in: list[int] = field(default_factory=lambda: [0] * OVERRIDE_CHANNELS)
+    last_valid_s: float = -math.inf  # when RC input was last "new" (Rover::read_radio last_valid_rc_ms)
+
+    def apply_override(self, raw: list[int], t_s: float) -> None:
+        """Store an RC_CHANNELS_OVERRIDE's 18 values (GCS_Common.cpp handle_rc_channels_override)."""
+        for i, value in enumerate(raw[:OVERRIDE_CHANNELS]):
+            if i < 8:
+                if value == UINT16_MAX:
+                    continue
+            elif value in (0, UINT16_MAX):
+                continue
+            elif value == UINT16_MAX - 1:
+                value = 0
+            self.override[i] = int(value)
+            self.override_t[i] = t_s
+        self.last_valid_s = t_s
+
+    def clear_overrides(self) -> None:
+        """RC_Channels::clear_overrides (a failsafe does this)."""
+        self.override = [0] * OVERRIDE_CHANNELS
+        self.override_t = [-math.inf] * OVERRIDE_CHANNELS
+
+    def has_override(self, i: int, t_s: float, timeout_s: float) -> bool:
+        if self.override[i] == 0:
+            return False
+        if timeout_s < 0:
+            return True
+        if timeout_s == 0:
+            return False
+        return t_s - self.override_t[i] < timeout_s
+
+    def any_override(self, t_s: float, timeout_s: float) -> bool:
+        return any(self.has_override(i, t_s, timeout_s) for i in range(OVERRIDE_CHANNELS))
+
+    def update(self, t_s: float, timeout_s: float, trims: list[int]) -> None:
+        """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value."""
+        for i in range(OVERRIDE_CHANNELS):
+            if self.has_override(i, t_s, timeout_s):
+                self.radio_in[i] = self.override[i]
+            elif self.receiver:
+                self.radio_in[i] = trims[i] if i < len(trims) else 1500
+        if self.receiver:
+            self.last_valid_s = t_s
+
+
+@dataclass
+class PilotOutput:
+    """What the motors get, each in [-1, 1]: steering (+ clockwise), throttle (+ forward), lateral (+ right)."""
+
+    steering: float = 0.0
+    throttle: float = 0.0
+    lateral: float = 0.0
+
+
+def pilot_demand(channel, steer_type: int, skid: bool) -> tuple[float, float]:
+    """Rover/mode.cpp get_pilot_input + the skid-steer saturation of get_pilot_desired_steering_and_throttle.
+    `channel(name, paddle=False)` reads "steer" or "throttle" as an angle input (or norm_input_dz for paddles)."""
+    if steer_type == 1:  # two paddles
+        left, right = channel("steer", True), channel("throttle", True)
+        throttle, steering = 0.5 * (left + right), 0.5 * (left - right)
+    else:
+        throttle = channel("throttle", False)
+        steering = channel("steer", False)
+        if steer_type in (0, 2) and throttle < 0:
+            steering = -steering
+    if skid:
+        saturation = abs(min(1.0, max(-1.0, steering))) + abs(min(1.0, max(-1.0, throttle)))
+        if saturation > 1.0:
+            steering, throttle = steering / saturation, throttle / saturation
+    return steering, throttle
+
+
+def slew_limited(throttle: float, previous: float, slew_pct_per_s: float, dt_s: float) -> float:
+    """AP_MotorsUGV::get_slew_limited_throttle on [-1, 1] throttle (MOT_SLEWRATE in % of full range per s)."""
+    if slew_pct_per_s <= 0:
+        return throttle
+    step = slew_pct_per_s / 100.0 * max(0.0, dt_s)
+    return min(previous + step, max(previous - step, throttle))
+
+
+def omni_motor_outputs(frame_type: int, out: PilotOutput) -> list[float]:
+    """Each omni motor's output in [-1, 1] (AP_MotorsUGV::output_omni: sum of factors, scaled back evenly)."""
+    factors = OMNI_FACTORS.get(frame_type, ())
+    raw = [out.throttle * t + out.steering * s + out.lateral * lat for t, s, lat in factors]
+    biggest = max([1.0] + [abs(v) for v in raw])
+    return [v / biggest for v in raw]
+
+
+def skid_outputs(out: PilotOutput) -> tuple[float, float]:
+    """(left, right) in [-1, 1]: throttle + steering, throttle - steering, scaled back together on saturation
+    (AP_MotorsUGV::output_skid_steering with symmetric thrust)."""
+    steering = min(1.0, max(-1.0, out.steering))
+    throttle = min(1.0, max(-1.0, out.throttle))
+    saturation = max(abs(throttle) + abs(steering), 1.0)
+    return (throttle + steering) / saturation, (throttle - steering) / saturation
+
+
+def servo_pwm(value: float, low: int = 1100, trim: int = 1500, high: int = 1900) -> int:
+    """An output in [-1, 1] as SERVOn PWM about its trim (SRV_Channel defaults 1100/1500/1900)."""
+    v = min(1.0, max(-1.0, value))
+    return round(trim + v * ((high - trim) if v >= 0 else (trim - low)))
