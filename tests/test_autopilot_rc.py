@@ -1,0 +1,147 @@
+"""Parameters take effect as in ArduPilot Rover (item 3): RC scaling (RCx_MIN/TRIM/MAX/DZ/REVERSED), overrides only
+from MAV_GCS_SYSID and only for RC_OVERRIDE_TIME, RCMAP_*, INITIAL_MODE, PILOT_STEER_TYPE, FRAME_TYPE (lateral only
+on omni frames), MOT_SLEWRATE; what the vehicle applies is visible in RC_CHANNELS and SERVO_OUTPUT_RAW."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from autopilot_helpers import Gcs, of_type, parse
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from sitl.autopilot_rc import scale_angle
+from sitl.mavlink_vehicle import SimulatedVehicle
+
+m = mavlink
+NO_SLEW = {"MOT_SLEWRATE": 0}
+
+
+def _armed(kind: str = "buoy", **params) -> SimulatedVehicle:
+    return SimulatedVehicle(1, kind, 10.0 if kind == "buoy" else 1.0, armed=True, params={**NO_SLEW, **params})
+
+
+def _drive(v: SimulatedVehicle, channels: dict[int, int], t: float = 0.0, gcs: Gcs | None = None) -> np.ndarray:
+    v.receive((gcs or Gcs()).override(channels), t)
+    return v.actuator(t)
+
+
+@pytest.mark.parametrize(
+    ("pwm", "calib", "expected"),
+    [
+        (1900, (1100, 1500, 1900, 30, False), 1.0),
+        (1530, (1100, 1500, 1900, 30, False), 0.0),  # inside the dead zone
+        (1715, (1100, 1500, 1900, 30, False), 0.5),
+        (1285, (1100, 1500, 1900, 30, False), -0.5),
+        (1900, (1000, 1500, 2000, 30, False), (1900 - 1530) / (2000 - 1530)),  # SITL's 1000..2000: 78.7 %
+        (1510, (1100, 1500, 1900, 0, False), 10 / 400),
+        (1900, (1100, 1500, 1900, 30, True), -1.0),
+        (2500, (1100, 1500, 1900, 30, False), 1.0),  # clipped to MAX
+        (1600, (1100, 1600, 1900, 30, False), 0.0),  # TRIM moved
+    ],
+)
+def test_scaling_is_rc_channels_pwm_to_angle(pwm, calib, expected) -> None:
+    assert scale_angle(pwm, *calib) == pytest.approx(expected)
+
+
+def test_a_buoy_scales_throttle_with_its_rc3_calibration() -> None:
+    v = _armed(RC3_MIN=1000, RC3_MAX=2000)
+    thrust = _drive(v, {3: 1900})
+    assert thrust[0] == pytest.approx(10.0 * 370 / 470) and thrust[1] == 0.0
+    assert _drive(v, {3: 1520}, 0.1)[0] == 0.0, "dead zone"
+
+
+def test_overrides_are_taken_only_from_mav_gcs_sysid() -> None:
+    v = _armed()
+    assert not _drive(v, {3: 1900}, gcs=Gcs(system=200)).any() and v.counters.refused == 1
+    v.params.set("MAV_GCS_SYSID", 200)
+    assert _drive(v, {3: 1900}, 0.1, gcs=Gcs(system=200))[0] == pytest.approx(10.0)
+    assert v.counters.commands == 1
+
+
+@pytest.mark.parametrize(("timeout", "alive_at", "gone_at"), [(3.0, 2.95, 3.05), (1.0, 0.95, 1.05), (-1.0, 500, None)])
+def test_an_override_counts_for_rc_override_time(timeout, alive_at, gone_at) -> None:
+    v = _armed(RC_OVERRIDE_TIME=timeout)
+    _drive(v, {3: 1900})
+    assert v.actuator(alive_at)[0] == pytest.approx(10.0)
+    if gone_at is not None:
+        assert v.actuator(gone_at)[0] == 0.0 and v.counters.failsafes == 1
+
+
+def test_zero_override_time_disables_overrides() -> None:
+    assert not _drive(_armed(RC_OVERRIDE_TIME=0), {3: 1900}).any()
+
+
+def test_zero_releases_a_channel_and_max_leaves_it_alone() -> None:
+    v = _armed()
+    _drive(v, {3: 1900, 4: 1900})
+    assert _drive(v, {3: 65535, 4: 0}, 0.1).tolist() == pytest.approx([10.0, 0.0])  # lateral back to the radio
+
+
+def test_rcmap_decides_which_channel_is_which() -> None:
+    v = _armed(RCMAP_THROTTLE=2, RCMAP_YAW=5, RC5_DZ=30)
+    assert _drive(v, {3: 1900, 4: 1900}).tolist() == [0.0, 0.0]
+    thrust = _drive(v, {2: 1900, 5: 1100}, 0.1)
+    assert thrust.tolist() == pytest.approx([10.0, 10.0])  # forward; lateral left (positive y)
+
+
+def test_lateral_moves_only_an_omni_frame() -> None:
+    assert _drive(_armed(), {4: 1900})[1] == pytest.approx(-10.0)  # lateral right = thrust to -y
+    assert _drive(_armed(FRAME_TYPE=0), {4: 1900}).tolist() == [0.0, 0.0]
+
+
+@pytest.mark.parametrize(
+    ("steer_type", "expected"),
+    [(0, (-1.0, 0.0)), (2, (-1.0, 0.0)), (3, (0.0, -1.0))],  # 0 and 2 flip the steering when reversing
+)
+def test_pilot_steer_type_and_reverse(steer_type: int, expected) -> None:
+    v = _armed("ebot", PILOT_STEER_TYPE=steer_type)
+    # Throttle half back, steering half right: ArduPilot's default turns the other way when reversing.
+    wheels = _drive(v, {3: 1500 - 30 - 185, 1: 1500 + 30 + 185})
+    assert wheels.tolist() == pytest.approx(expected)
+
+
+def test_two_paddles() -> None:
+    v = _armed("ebot", PILOT_STEER_TYPE=1)
+    assert _drive(v, {1: 1900, 3: 1900}).tolist() == pytest.approx([1.0, 1.0])
+    assert _drive(v, {1: 1900, 3: 1500}, 0.1).tolist() == pytest.approx([1.0, 0.0])
+
+
+def test_skid_steer_scales_steering_and_throttle_back_together() -> None:
+    wheels = _drive(_armed("ebot"), {1: 1900, 3: 1900})
+    assert wheels.tolist() == pytest.approx([1.0, 0.0])  # 0.5 + 0.5, 0.5 - 0.5
+
+
+def test_initial_mode_is_the_boot_mode() -> None:
+    v = SimulatedVehicle(1, "buoy", 10.0, armed=True, params={"INITIAL_MODE": 4})
+    assert v.mode == 4
+    assert not _drive(v, {3: 1900}).any(), "HOLD"
+    (hb, *_) = of_type(parse(v.stream(0.0)), "HEARTBEAT")
+    assert hb.custom_mode == 4 and hb.system_status == m.MAV_STATE_STANDBY
+
+
+def test_mot_slewrate_ramps_the_throttle() -> None:
+    v = SimulatedVehicle(1, "buoy", 10.0, armed=True)  # MOT_SLEWRATE 100 %/s
+    v.actuator(0.0)
+    v.receive(Gcs().override({3: 1900}), 0.0)
+    assert [v.actuator(t)[0] for t in (0.25, 0.5, 1.0, 1.5)] == pytest.approx([2.5, 5.0, 10.0, 10.0])
+
+
+def test_rc_channels_and_servo_output_raw_show_what_the_vehicle_applies() -> None:
+    v, gcs = SimulatedVehicle(1, "ebot", 1.0, params=NO_SLEW), Gcs()
+    v.receive(gcs.override({1: 1715, 3: 1900}), 0.0)
+    v.actuator(0.0)
+    messages = parse(v.stream(0.0))
+    (rc,) = of_type(messages, "RC_CHANNELS")
+    (servo,) = of_type(messages, "SERVO_OUTPUT_RAW")
+    assert (rc.chan1_raw, rc.chan3_raw, rc.chan2_raw, rc.chancount) == (1715, 1900, 1500, 16)
+    assert (servo.servo1_raw, servo.servo3_raw) == (1500, 1500), "disarmed: outputs at trim"
+    v.receive(gcs.long(m.MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.1)
+    v.receive(gcs.override({1: 1715, 3: 1900}), 1.1)
+    v.actuator(1.1)
+    (servo,) = of_type(parse(v.stream(1.1)), "SERVO_OUTPUT_RAW")
+    # throttle 1, steering 0.5 saturate to 1/1.5: left 1.0, right 1/3 (ThrottleLeft on SERVO1, Right on SERVO3)
+    assert (servo.servo1_raw, servo.servo3_raw) == (1900, round(1500 + 400 / 3))
+    v.receive(gcs.override({1: 0, 3: 0}), 1.2)  # release: the receiver's neutral sticks
+    v.actuator(1.2)
+    (rc,) = of_type(parse(v.stream(2.2)), "RC_CHANNELS")
+    assert (rc.chan1_raw, rc.chan3_raw) == (1500, 1500)
