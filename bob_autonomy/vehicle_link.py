@@ -17,6 +17,7 @@ from firmware_bridge.commands import Encoder, command_long_arm, rc_override_for_
 from firmware_bridge.decoder import Battery, CommandAck, Heartbeat, HeartbeatWatch, Reading, TelemetryDecoder
 
 BUOY, EBOT = "buoy", "ebot"
+AUTOPILOT_COMPONENT = 1  # MAV_COMP_ID_AUTOPILOT1: the only component whose telemetry moves the estimate
 
 
 class VehicleLink:
@@ -25,6 +26,10 @@ class VehicleLink:
     kind: "buoy" (commands are body-frame thrust, N) or "ebot" (wheel speeds, m/s). max_actuator: the
     actuator's full scale (N or m/s), which RC 1900 us stands for. agent: the row its readings carry.
     clock: seconds, stamps readings at reception. heartbeat_timeout_s: silence after which `silent()` is true.
+
+    Only the vehicle's autopilot is believed: telemetry, heartbeats and acknowledgements from any other
+    system id or from a component other than 1 (MAV_COMP_ID_AUTOPILOT1) are dropped and counted
+    (`decoder.counters.other_system`, `other_component`).
     """
 
     def __init__(
@@ -42,7 +47,9 @@ class VehicleLink:
             raise ValueError(f"unknown vehicle kind {kind!r}; choose buoy or ebot")
         self.target_system, self.kind, self.max_actuator = target_system, kind, float(max_actuator)
         # Raw GPS only: the autopilot's fused GLOBAL_POSITION_INT would be a second, correlated fix.
-        self.decoder = TelemetryDecoder(clock, agent=agent, source_system=target_system, fused_position=False)
+        self.decoder = TelemetryDecoder(
+            clock, agent=agent, source_system=target_system, source_component=AUTOPILOT_COMPONENT, fused_position=False
+        )
         self.watch = HeartbeatWatch(heartbeat_timeout_s, clock, system=target_system)
         self.encoder = encoder if encoder is not None else Encoder()
         self.last_heartbeat: Heartbeat | None = None
@@ -53,10 +60,9 @@ class VehicleLink:
         """Decode bytes from the vehicle; returns the sensor readings (GPS, compass, IMU, wheels) among them."""
         sensors: list[Reading] = []
         for reading in self.decoder.feed(data):
-            if isinstance(reading, Heartbeat):
-                if reading.component == 1:  # the autopilot, not a companion or GCS on the same system
-                    self.watch.beat(reading.t_s)
-                    self.last_heartbeat = reading
+            if isinstance(reading, Heartbeat):  # the autopilot's: the decoder keeps only component 1
+                self.watch.beat(reading.t_s)
+                self.last_heartbeat = reading
             elif isinstance(reading, Battery):
                 self.battery = reading
             elif isinstance(reading, CommandAck):

@@ -129,6 +129,8 @@ class DecoderCounters:
     pending_bytes: int = 0
     no_fix: int = 0
     other_system: int = 0
+    other_component: int = 0
+    not_yet_known: int = 0
     by_type: dict[str, int] = field(default_factory=dict)
 
 
@@ -204,9 +206,15 @@ def contains_mavlink_frame(data: bytes) -> bool:
 class TelemetryDecoder:
     """Bytes in, typed readings out, for one vehicle (readings carry `agents = [agent]`).
 
+    Whose telemetry is believed (issue 17: another sender on a serial or UDP link must not move an estimate):
     `source_system`, when given, keeps only messages from that MAVLink system id (others are counted in
-    `counters.other_system`). `fused_position=False` ignores GLOBAL_POSITION_INT (the autopilot's own fused
-    position), so that an estimator fed GPS_RAW_INT does not fuse every fix twice.
+    `counters.other_system`); `source_component` keeps only that component's (`other_component`), e.g. 1, the
+    autopilot (MAV_COMP_ID_AUTOPILOT1), so that a companion computer or a ground station on the same system
+    id is not taken for the vehicle. `learn_source=True` with no `source_system`: the system id is learnt
+    from the first HEARTBEAT of an autopilot (`autopilot` not MAV_AUTOPILOT_INVALID, from `source_component`
+    or 1), and until then no readings are made (`not_yet_known`). `message_hook` and `feed_messages` see
+    every decoded message, of any source. `fused_position=False` ignores GLOBAL_POSITION_INT (the
+    autopilot's own fused position), so that an estimator fed GPS_RAW_INT does not fuse every fix twice.
     """
 
     def __init__(
@@ -215,12 +223,16 @@ class TelemetryDecoder:
         *,
         agent: int = 0,
         source_system: int | None = None,
+        source_component: int | None = None,
+        learn_source: bool = False,
         fused_position: bool = True,
     ) -> None:
         self.clock = clock
         self.fused_position = fused_position
         self.agent = agent
         self.source_system = source_system
+        self.source_component = source_component
+        self.learn_source = learn_source
         self.counters = DecoderCounters()
         self._mav = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
         self._buf = bytearray()
@@ -234,8 +246,7 @@ class TelemetryDecoder:
         readings: list[Reading] = []
         t_s: float | None = None
         for msg in self.feed_messages(data):
-            if self.source_system is not None and msg.get_srcSystem() != self.source_system:
-                self.counters.other_system += 1
+            if not self._from_source(msg):
                 continue
             if t_s is None:
                 t_s = float(self.clock())
@@ -310,6 +321,29 @@ class TelemetryDecoder:
             if self.message_hook is not None:
                 self.message_hook(msg)
         del buf[:pos]
+
+    def _from_source(self, msg) -> bool:
+        """Whether msg comes from the vehicle whose telemetry we believe (counting those that do not)."""
+        c = self.counters
+        component = msg.get_srcComponent()
+        if self.source_system is None and self.learn_source:
+            autopilot = self.source_component if self.source_component is not None else 1
+            if (
+                msg.get_type() == "HEARTBEAT"
+                and component == autopilot
+                and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
+            ):
+                self.source_system = msg.get_srcSystem()  # the first autopilot heard is the vehicle
+            else:
+                c.not_yet_known += 1
+                return False
+        if self.source_system is not None and msg.get_srcSystem() != self.source_system:
+            c.other_system += 1
+            return False
+        if self.source_component is not None and component != self.source_component:
+            c.other_component += 1
+            return False
+        return True
 
     # -- conversion ------------------------------------------------------------------------------------
 

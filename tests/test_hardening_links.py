@@ -8,21 +8,32 @@ autopilot (its system id, component 1); mesh packets with NaN, infinite or absur
 
 from __future__ import annotations
 
+import binascii
 import hashlib
+import math
 import socket
+import struct
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.clock import ScaledWallClock
 from bob_autonomy.gcs import MavlinkCodec
+from bob_autonomy.interfaces import AgentState, Pose
+from bob_autonomy.mesh import LinkMesh, PacketError, PacketValueError, decode_state, encode_state, packet_agent_id
+from bob_autonomy.vehicle_link import VehicleLink
 from bob_autonomy.vessel import Vessel, VesselConfig
 from firmware_bridge import commands
-from firmware_bridge.decoder import contains_mavlink_frame
+from firmware_bridge.commands import Encoder
+from firmware_bridge.decoder import TelemetryDecoder, contains_mavlink_frame
 from firmware_bridge.links import UdpLink, open_link
+from firmware_bridge.telemetry import TelemetryEncoder
 
 pytestmark = pytest.mark.xdist_group("realtime")
 
@@ -198,3 +209,172 @@ def test_an_attacker_never_receives_the_vessels_frames_and_the_gcs_keeps_them(tm
         gcs.close()
         attacker.close()
         vessel.shutdown()
+
+
+# -- item 3: udpout and the vehicle link ----------------------------------------------------------------------
+
+LAT, LON = 1.3405, 103.9560
+
+
+def flat(readings) -> list:
+    """Readings as comparable values: type name and every field's numbers."""
+    out = []
+    for r in readings:
+        values = {k: None if v is None else np.asarray(v, float).ravel().round(9).tolist() for k, v in vars(r).items()}
+        out.append((type(r).__name__, values))
+    return out
+
+
+def _telemetry(enc: TelemetryEncoder, fake: bool) -> list[bytes]:
+    """A vehicle's telemetry, or an attacker's forgery with the same ids and other values."""
+    k = 1.0 if fake else 0.0
+    return [
+        enc.heartbeat(mavlink.MAV_TYPE_SURFACE_BOAT, not fake),
+        enc.gps_raw_int(1.0, LAT + 3e-4 * k, LON, (0.5 + 5 * k, 0.0)),
+        enc.attitude(1.0, 0.3 + 2 * k),
+        enc.scaled_imu(1.0, (0.1 + 9 * k, 0.0), 0.01 + k),
+    ]
+
+
+def test_a_third_socket_cannot_inject_telemetry_into_a_udpout_vehicle_link() -> None:
+    vehicle, attacker = udp_socket(), udp_socket()
+    clock = lambda: 5.0  # noqa: E731 - a fixed reception time, so readings compare exactly
+    link = open_link(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}")
+    vessel_side = VehicleLink(1, "buoy", 45.0, clock)
+    try:
+        link.write(vessel_side.arm(True))  # the vessel speaks first: the vehicle learns its address
+        vehicle.settimeout(1.0)
+        _, address = vehicle.recvfrom(65535)
+        real, fake = _telemetry(TelemetryEncoder(1), False), _telemetry(TelemetryEncoder(1), True)
+        for forged, frame in zip(fake, real, strict=True):
+            attacker.sendto(forged, address)  # same system and component ids, from another port
+            vehicle.sendto(frame, address)
+            attacker.sendto(forged * 2, address)
+        readings = []
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            data = link.read(65535, 0.05)
+            if data:
+                readings += vessel_side.receive(data)
+        expected_side = VehicleLink(1, "buoy", 45.0, clock)
+        expected = expected_side.receive(b"".join(real))
+        assert len(expected) == 3 and flat(readings) == flat(expected)
+        assert vessel_side.last_heartbeat is not None and vessel_side.armed  # the forged heartbeat says disarmed
+        assert link.foreign == 2 * len(fake)
+    finally:
+        link.close()
+        vehicle.close()
+        attacker.close()
+
+
+@pytest.mark.parametrize(
+    ("system", "component"),
+    [(2, 1), (255, 190), (1, 191), (1, 0), (1, 2), (1, 250)],
+    ids=["another-vehicle", "a-gcs", "a-companion-on-our-system", "component-0", "component-2", "component-250"],
+)
+def test_the_vehicle_link_believes_only_its_autopilot(system: int, component: int) -> None:
+    link = VehicleLink(1, "buoy", 45.0, lambda: 5.0)
+    forged = b"".join(_telemetry(TelemetryEncoder(system, component), True))
+    assert link.receive(forged) == []
+    c = link.decoder.counters
+    assert (c.other_system if system != 1 else c.other_component) == 4
+    assert link.last_heartbeat is None
+    real = link.receive(b"".join(_telemetry(TelemetryEncoder(1), False)))
+    assert len(real) == 3 and link.armed
+
+
+def test_a_decoder_learns_its_vehicle_from_the_first_autopilot_heartbeat() -> None:
+    decoder = TelemetryDecoder(lambda: 0.0, learn_source=True, source_component=1)
+    vehicle, other = TelemetryEncoder(4), TelemetryEncoder(5)
+    gcs = Encoder(255, 190)
+    assert decoder.feed(vehicle.attitude(0.0, 0.1)) == []  # nobody known yet
+    gcs_beat = gcs.pack(gcs.mav.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    assert decoder.feed(gcs_beat) == [] and decoder.source_system is None  # a ground station is no autopilot
+    assert len(decoder.feed(vehicle.heartbeat(mavlink.MAV_TYPE_SURFACE_BOAT, False))) == 1
+    assert decoder.source_system == 4
+    assert decoder.feed(other.heartbeat(mavlink.MAV_TYPE_SURFACE_BOAT, False) + other.attitude(0.0, 1.0)) == []
+    assert len(decoder.feed(vehicle.attitude(0.0, 0.1))) == 1
+    c = decoder.counters
+    assert (c.not_yet_known, c.other_system) == (2, 2)
+
+
+# -- item 3: the mesh ---------------------------------------------------------------------------------------
+
+
+OFFSET = {"t": (7, "<d"), "x": (15, "<f"), "y": (19, "<f"), "heading": (23, "<f"), "vx": (27, "<f"), "vy": (31, "<f")}
+
+
+def _packet(**changes) -> bytes:
+    """Agent 4's packet, good but for `changes` written straight into its fields (as a forger would, without
+    encode_state's wrapping of the heading), with a correct CRC."""
+    raw = bytearray(encode_state(AgentState(4, 12.5, Pose(10.0, -20.0, 0.5, 0.3, -0.2), {}), []))
+    for name, value in changes.items():
+        offset, fmt = OFFSET[name]
+        struct.pack_into(fmt, raw, offset, value)
+    raw[-2:] = struct.pack("<H", binascii.crc_hqx(bytes(raw[:-2]), 0xFFFF))
+    return bytes(raw)
+
+
+@pytest.mark.parametrize("field", ["t", "x", "y", "heading", "vx", "vy"])
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf, 1e30, -1e30])
+def test_mesh_packets_with_non_finite_or_absurd_values_are_refused(field: str, value: float) -> None:
+    packet = _packet(**{field: value})
+    with pytest.raises(PacketValueError, match=field):
+        decode_state(packet, [])
+    assert packet_agent_id(packet) is None
+
+
+def test_mesh_headings_are_wrapped_and_memory_may_be_unknown_but_not_infinite() -> None:
+    assert decode_state(_packet(heading=math.pi), []).pose.heading == pytest.approx(-math.pi, abs=1e-6)
+    assert decode_state(_packet(heading=-math.pi), []).pose.heading == pytest.approx(math.pi, abs=1e-6)
+    for heading in (3.2, -3.2, 100.0):
+        with pytest.raises(PacketValueError, match="heading"):
+            decode_state(_packet(heading=heading), [])
+    sent = encode_state(AgentState(4, 1.0, Pose(0.0, 0.0, 3.5), {}), [])  # a sender's heading is wrapped first
+    assert decode_state(sent, []).pose.heading == pytest.approx(3.5 - 2 * math.pi, abs=1e-6)
+    unknown = encode_state(AgentState(4, 1.0, Pose(0.0, 0.0, 0.0), {"goal": np.array([np.nan, np.nan])}), ["goal"])
+    assert np.isnan(decode_state(unknown, ["goal"]).memory["goal"]).all()
+    infinite = encode_state(AgentState(4, 1.0, Pose(0.0, 0.0, 0.0), {"goal": np.array([np.inf, 0.0])}), ["goal"])
+    with pytest.raises(PacketValueError, match="memory"):
+        decode_state(infinite, ["goal"])
+
+
+def test_a_mesh_packet_with_nan_x_is_never_returned_by_the_mesh() -> None:
+    relay = udp_socket()
+    link = open_link(f"udpout:127.0.0.1:{relay.getsockname()[1]}")
+    mesh = LinkMesh(link, 0, [], lambda: 0.0)
+    try:
+        link.write(b"hello")  # learn our address
+        relay.settimeout(1.0)
+        _, address = relay.recvfrom(100)
+        for packet in (_packet(x=math.nan), _packet(), _packet(heading=math.inf), _packet(x=1e30)):
+            relay.sendto(packet, address)
+        time.sleep(0.05)
+        states = mesh.receive()
+        assert [(s.agent_id, s.pose.x) for s in states] == [(4, 10.0)]
+        assert (mesh.invalid, mesh.out_of_range, mesh.received) == (3, 3, 1)
+    finally:
+        link.close()
+        relay.close()
+
+
+@settings(max_examples=300, deadline=None, database=None)
+@given(
+    values=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=6, max_size=6),
+    memory=st.lists(st.floats(width=32), max_size=4),
+)
+def test_any_state_decodes_to_finite_values_in_range_or_is_refused(values, memory) -> None:
+    t, x, y, heading, vx, vy = values
+    state = AgentState(9, t, Pose(x, y, heading, vx, vy), {"m": np.array(memory, dtype=float)})
+    try:
+        packet = encode_state(state, ["m"])
+    except (PacketError, OverflowError, struct.error):
+        return  # not even encodable (e.g. 1e300 into a float32): nothing to send
+    try:
+        decoded = decode_state(packet, ["m"])
+    except PacketValueError:
+        return
+    p = decoded.pose
+    assert all(math.isfinite(v) for v in (decoded.t, p.x, p.y, p.heading, p.vx, p.vy))
+    assert -math.pi < p.heading <= math.pi and abs(p.x) <= 1e7 and abs(p.vx) <= 100 and abs(decoded.t) <= 1e10
+    assert not np.isinf(decoded.memory["m"]).any()
