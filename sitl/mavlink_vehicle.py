@@ -533,7 +533,13 @@ class SimulatedVehicle:
         if p.get_int("FS_GCS_ENABLE") and self._gcs_seen_s is not None:
             gcs = t_s - self._gcs_seen_s >= p["FS_GCS_TIMEOUT"]
         may = self.mode not in (safety.HOLD, safety.RTL) or bool(p.get_int("FS_OPTIONS") & 1)
-        for kind, name, on in ((safety.FS_RADIO, "Radio", radio), (safety.FS_GCS, "GCS", gcs)):
+        # As Rover calls failsafe_trigger: the radio check every loop when FS_THR_ENABLE, the GCS check when
+        # FS_GCS_ENABLE and the GCS has been heard. Whichever call first finds FS_TIMEOUT passed names the
+        # failsafe, so a lost GCS is announced "Radio Failsafe" when the radio check is on (Rover/failsafe.cpp).
+        checks = [(safety.FS_RADIO, "Radio", radio)] if p.get_int("FS_THR_ENABLE") else []
+        if p.get_int("FS_GCS_ENABLE") and self._gcs_seen_s is not None:
+            checks.append((safety.FS_GCS, "GCS", gcs))
+        for kind, name, on in checks:
             text = self.failsafe.update(kind, name, on, t_s, p["FS_TIMEOUT"], may)
             if text is None:
                 continue
