@@ -468,13 +468,15 @@ class SimulatedVehicle:
         return True
 
     def _set_home_command(self, msg, p: list[float], is_int: bool) -> int:
-        """GCS_Common.cpp handle_command_do_set_home (COMMAND_LONG: lat/lon from param5/6, NaN taken as 0)."""
+        """GCS_Common.cpp handle_command_do_set_home (COMMAND_LONG: lat/lon degrees in param5/6). Stricter than
+        ArduPilot, which takes a NaN latitude or longitude for 0: a non-finite one is DENIED unless param1 = 1."""
         if is_int:
             x, y, z, frame = int(msg.x), int(msg.y), float(msg.z), int(msg.frame)
         else:
             lat, lon = float(msg.param5), float(msg.param6)
-            x = 0 if math.isnan(lat) or abs(lat) > 1e3 else round(lat * 1e7)
-            y = 0 if math.isnan(lon) or abs(lon) > 1e3 else round(lon * 1e7)
+            if p[0] != 1.0 and not (_finite(lat, lon) and abs(lat) <= 1e3 and abs(lon) <= 1e3):
+                return self._reject(m.MAV_RESULT_DENIED)
+            x, y = (round(lat * 1e7), round(lon * 1e7)) if _finite(lat, lon) else (0, 0)
             z, frame = float(msg.param7), m.MAV_FRAME_GLOBAL
         if p[0] == 1.0 or (x == 0 and y == 0):
             if self._gps is None or not self.has_fix():
