@@ -81,6 +81,7 @@ STATUSTEXT_LEN = 50
 MAX_OUTGOING = 10_000  # frames held for outgoing() at most
 REFUSAL_LOG_FIRST = 10  # out-of-range refusals logged one by one; then at most one line per REFUSAL_LOG_PERIOD_S
 REFUSAL_LOG_PERIOD_S = 10.0
+SECURITY_LOG_PERIOD_S = 60.0  # clock s: how often tick() logs the rejected-input counters when they changed
 
 CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
@@ -145,7 +146,7 @@ class GcsComponent(MissionProtocol):
     State the process reads: `behavior_running` (bool), `goals` and `fence` (lists of (lat, lon) deg),
     `params`, `pending_autopilot` (AutopilotCommand list; `take_autopilot_commands()` drains it),
     `gcs_lost` (BOB_GCS_FS_S elapsed without a ground-station HEARTBEAT, after one was heard),
-    `counters`.
+    `counters` (`counters.security()`: the rejected-input counters, logged every minute when they changed).
     """
 
     def __init__(
@@ -185,6 +186,8 @@ class GcsComponent(MissionProtocol):
         self._last_upload: tuple[tuple[int, int], int, int, int] | None = None  # peer, type, count, result
         self._statustext_id = 0
         self._last_refusal_log_s = -math.inf
+        self._security_logged = self.counters.security()
+        self._last_security_log_s = float(clock())
         if params.load_problem:
             self.notify(mavlink.MAV_SEVERITY_WARNING, params.load_problem)
 
@@ -241,6 +244,22 @@ class GcsComponent(MissionProtocol):
             self._send_position()
         self._check_upload_timeout(now)
         self._check_gcs_failsafe(now)
+        if now - self._last_security_log_s >= SECURITY_LOG_PERIOD_S:
+            self._last_security_log_s = now
+            self.log_counters(only_if_changed=True)
+
+    def log_counters(self, *, only_if_changed: bool = False) -> dict[str, int]:
+        """Log the counters of rejected input (`GcsCounters.SECURITY`: unsigned, bad signature, replay,
+        malformed, out of range) as one line (a warning when any is not zero); tick() does it every
+        SECURITY_LOG_PERIOD_S when they changed. Returns them."""
+        current = self.counters.security()
+        if only_if_changed and current == self._security_logged:
+            return current
+        self._security_logged = current
+        text = ", ".join(f"{name} {value}" for name, value in current.items())
+        level = logging.WARNING if any(current.values()) else logging.INFO
+        logger.log(level, "ground-station input rejected since start (system %d): %s", self.system_id, text)
+        return current
 
     def notify(self, severity: int, text: str) -> None:
         """Report an event with STATUSTEXT (MAV_SEVERITY_*; 0 emergency .. 7 debug); text longer than 50

@@ -15,6 +15,7 @@ zero. Every MAVLink frame in or out can be logged to a .tlog.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import statistics
@@ -171,9 +172,11 @@ class VesselStats:
     estimator_resets: int = 0
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
+    gcs: dict[str, int] = field(default_factory=dict)  # the GCS component's rejected-input counters, at the end
 
     def summary(self) -> dict[str, float]:
         out: dict[str, float] = {k: v for k, v in vars(self).items() if isinstance(v, int)}
+        out.update({f"gcs_{name}": value for name, value in self.gcs.items()})
         for name in ("compute_latency_s", "telemetry_to_command_s"):
             values = sorted(getattr(self, name))
             if values:
@@ -560,4 +563,6 @@ class Vessel:
                 link.close()
         if self.tlog is not None:
             self.tlog.close()
-        logger.info("vessel %d stopped: %s", self.config.system_id, self.stats.summary())
+        self.stats.gcs = self.gcs.log_counters()
+        # One JSON line that process fleets read back (sitl.vessel_logs) for metrics.json.
+        logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))

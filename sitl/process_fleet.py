@@ -62,6 +62,7 @@ from sitl.runner import estimation_errors, write_atomically
 from sitl.scenario import BehaviorChoice, Event, Scenario, ScenarioError, scenario_to_toml
 from sitl.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicle_server import DEFAULT_BASE_PORT, VehicleServer
+from sitl.vessel_logs import gcs_counters
 from sitl.world import FloatArray
 
 DEFAULT_GCS_PORT = 14600  # where the autonomy processes' GCS links point (bob_autonomy.mission.MissionClient)
@@ -639,6 +640,7 @@ class ProcessFleet:
         metrics["network"] = self.medium.counters()
         metrics["realtime"] = {"speed": self.options.speed, "dt_s": self.dt, **self.realtime.summary()}
         metrics["vehicles"] = {**self.server.counters(), "tlog_frames": self.tlog.frames}
+        metrics["gcs"] = gcs_counters({i + 1: self.out / f"vessel-{i + 1:02d}.log" for i in range(self.n)})
         metrics["processes"] = {
             "exit_codes": self.exit_codes,
             "killed": self.killed,

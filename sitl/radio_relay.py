@@ -2,8 +2,13 @@
 
 Each datagram is one mesh packet (`bob_autonomy.mesh`). The relay tells the
 sender by the agent id inside the packet (`bob_autonomy.mesh.packet_agent_id`,
-agent = system id - 1) and remembers the address it came from; a datagram that
-is not a valid packet is counted (`invalid`) and dropped. Every packet is
+agent = system id - 1) and binds that agent to the address of its first packet,
+for the relay's lifetime; a datagram that is not a valid packet (values in range
+included) is counted (`invalid`) and dropped. A later packet carrying an agent's
+id from another address, or a packet from a bound address carrying another
+agent's id, is a spoof (issue 17): counted (`spoofed`), dropped, and it never
+re-binds the agent's address, so nobody can take over another agent's deliveries
+or speak in its name. Every packet is
 offered to every other agent whose address is known, with the channel model of
 `sitl.radio.RadioChannel` applied to the *true* positions of the simulated
 vehicles (never to what the agents believe):
@@ -92,21 +97,23 @@ class RadioRelay:
             ) from error
         self.sock.setblocking(False)
         self.address = self.sock.getsockname()
-        self.addresses: dict[int, tuple[str, int]] = {}
+        self.addresses: dict[int, tuple[str, int]] = {}  # agent -> the address of its first packet
+        self._agent_at: dict[tuple[str, int], int] = {}  # the inverse: one agent per address
         self.last_sent_s = np.full(self.n, -np.inf)
         self.latest: dict[int, tuple[AgentState, float]] = {}  # agent -> (state, simulated time received)
         self._queue: list[tuple[float, int, bytes, tuple[str, int]]] = []
         self._seq = itertools.count()
         self.sent = self.delivered = self.dropped = self.invalid = 0
-        self.out_of_range = self.oversize = self.from_inactive = 0
+        self.out_of_range = self.oversize = self.from_inactive = self.spoofed = 0
 
     def fileno(self) -> int:
         return self.sock.fileno()
 
     def counters(self) -> dict[str, int]:
         """sent (valid packets from active agents), delivered and dropped (per listener in range), invalid
-        datagrams, out_of_range (listener-packet pairs beyond range), oversize packets, from_inactive packets."""
-        names = ("sent", "delivered", "dropped", "invalid", "out_of_range", "oversize", "from_inactive")
+        datagrams, out_of_range (listener-packet pairs beyond range), oversize packets, from_inactive packets,
+        spoofed packets (an agent's id from another address than its own)."""
+        names = ("sent", "delivered", "dropped", "invalid", "out_of_range", "oversize", "from_inactive", "spoofed")
         return {name: int(getattr(self, name)) for name in names}
 
     # -- in ------------------------------------------------------------------------------------------------
@@ -130,8 +137,10 @@ class RadioRelay:
         if agent is None or not 0 <= agent < self.n:
             self.invalid += 1
             return
+        if not self._bind(agent, sender):
+            self.spoofed += 1
+            return
         now = float(self.clock())
-        self.addresses[agent] = sender
         active = np.asarray(self.active(), dtype=bool)
         if not active[agent]:
             self.from_inactive += 1  # a removed vessel's radio is off
@@ -164,6 +173,18 @@ class RadioRelay:
         for listener, delay in zip(listeners[ok].tolist(), latency.tolist(), strict=True):
             heapq.heappush(self._queue, (now + delay, next(self._seq), packet, self.addresses[listener]))
         self.flush()
+
+    def _bind(self, agent: int, sender: tuple[str, int]) -> bool:
+        """Whether `sender` may speak for `agent`: its first address binds it, and an address speaks for one
+        agent only."""
+        bound = self.addresses.get(agent)
+        if bound is not None:
+            return bound == sender
+        if sender in self._agent_at:
+            return False  # this address already speaks for another agent
+        self.addresses[agent] = sender
+        self._agent_at[sender] = agent
+        return True
 
     def _interferers(
         self, sender: int, listeners: NDArray[np.intp], position: FloatArray, active: BoolArray, now: float
