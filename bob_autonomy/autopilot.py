@@ -64,12 +64,14 @@ CORE_PARAMS = (
 )
 RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
 
-# Messages the estimators need and the rates asked for (Hz), with the slowest rate still usable.
+# Messages the estimators need and the rates asked for (Hz), with the slowest rate still usable. ArduPilot
+# refuses intervals under 0.8 of its main loop period (GCS_Common.cpp `cap_message_interval`; Rover's loop runs
+# at 50 Hz), so nothing here is asked faster than 25 Hz.
 STREAMS_HZ = {
     BUOY: {
         mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
         mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
-        mavlink.MAVLINK_MSG_ID_SCALED_IMU: (50.0, 10.0),
+        mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
         mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
         mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
         mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
@@ -270,6 +272,7 @@ class AutopilotSession:
         self.custom_mode: int | None = None
         self.armed: bool | None = None
         self.fix_type = 0
+        self.prearm_ok: bool | None = None  # SYS_STATUS's pre-arm check bit, where the autopilot reports it
         self.satellites = 0
         self.home: tuple[float, float] | None = None
         self.version: object | None = None
@@ -305,6 +308,10 @@ class AutopilotSession:
             elif name == "STATUSTEXT":
                 text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
                 self.texts.append((now, int(msg.severity), text.rstrip("\x00")))
+            elif name == "SYS_STATUS":
+                bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+                if msg.onboard_control_sensors_present & bit and msg.onboard_control_sensors_enabled & bit:
+                    self.prearm_ok = bool(msg.onboard_control_sensors_health & bit)
             elif name == "GPS_RAW_INT":
                 self.fix_type, self.satellites = int(msg.fix_type), int(msg.satellites_visible)
             elif name == "HOME_POSITION":
@@ -432,11 +439,15 @@ class AutopilotSession:
     # -- watching ----------------------------------------------------------------------------------------
 
     def ready(self) -> str | None:
-        """None when the autopilot can be armed for us (3D GPS fix); else what it is waiting for."""
+        """None when the autopilot can be armed for us (3D GPS fix and, where SYS_STATUS reports it, its pre-arm
+        checks passing: libraries/GCS_MAVLink/GCS.cpp sets MAV_SYS_STATUS_PREARM_CHECK); else what it waits for."""
         if self.custom_mode is None:
             return "no HEARTBEAT from the autopilot yet"
         if self.fix_type < 3:
             return f"waiting for a 3D GPS fix (fix type {self.fix_type}, {self.satellites} satellites)"
+        if self.prearm_ok is False:
+            recent = [text for _t, _s, text in list(self.texts)[-8:] if text.startswith(("PreArm", "Arm"))]
+            return "its pre-arm checks are not passing yet" + (f" ({recent[-1]})" if recent else "")
         return None
 
     def slow_streams(self, now_s: float, grace_s: float = 5.0) -> list[str]:

@@ -137,6 +137,13 @@ class AutopilotStarter:
         command = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
         self._wait(1.5, lambda: len(s.acks_since(command, t0)) >= len(s.streams))
         results = s.acks_since(command, t0)
+        refused = [r for r in results if r != mavlink.MAV_RESULT_ACCEPTED]
+        if results and refused:
+            self._say(
+                mavlink.MAV_SEVERITY_WARNING,
+                f"autopilot refused {len(refused)} of {len(s.streams)} message-rate requests "
+                f"({RESULT_WORDS.get(refused[0], refused[0])}; faster than its loop allows?)",
+            )
         if not results or mavlink.MAV_RESULT_ACCEPTED not in results:
             word = "no answer" if not results else RESULT_WORDS.get(results[-1], str(results[-1]))
             self._say(

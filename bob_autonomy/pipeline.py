@@ -11,6 +11,7 @@ turns into MAVLink.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,11 +58,13 @@ class BuoyPipeline:
         dt_s: float = 0.1,
         mpc_time_budget_s: float = 0.02,
         model: BuoyModel | None = None,
+        on_ground: bool = False,
     ) -> None:
         _check_choice("estimator", estimator, ESTIMATORS)
         _check_choice("controller", controller, CONTROLLERS)
         self.n, self.frame = n, frame
         self.model = BuoyModel() if model is None else model
+        self.on_ground = on_ground
         self.max_thrust_n = np.broadcast_to(np.asarray(max_thrust_n, dtype=float), (n,)).copy()
         self.use_ekf, self.use_mpc = estimator == "ekf", controller == "mpc"
         self.estimator = self._new_estimator()
@@ -78,9 +81,14 @@ class BuoyPipeline:
         self.resets = 0
 
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
-        if self.use_ekf:
-            return BuoyEkfBank(self.n, params=BuoyEkfParams(model=self.model))
-        return AlphaBetaBuoyEstimator(self.n)
+        if not self.use_ekf:
+            return AlphaBetaBuoyEstimator(self.n)
+        params = BuoyEkfParams(model=self.model)
+        if self.on_ground:
+            # An omni rover on the ground: no water to drift in, and wheels that follow their commands rather
+            # than a thrust against drag, so the drift states stay at zero and the drag balance is left out.
+            params = replace(params, drift_psd=0.0, initial_drift_sigma_mps=1e-4, drag_balance_sigma_mps2=1e3)
+        return BuoyEkfBank(self.n, params=params)
 
     def diverged(self, t_s: float, *, distance_m: float = 100.0, fix_age_s: float = 5.0) -> NDArray[np.bool_]:
         """(n,) whether each estimate has left the ground: not finite, or more than `distance_m` (plus what the

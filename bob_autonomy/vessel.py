@@ -55,6 +55,8 @@ class VehicleError(RuntimeError):
 
 
 ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
+HEADING_GAIN = 0.5  # steering per rad of heading error (omni frames)
+HEADING_STEER_MAX = 0.15
 STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
 
 
@@ -254,10 +256,12 @@ class Vessel:
         self._alarm = False
         self.has_fix = False
         self._obeying = True
+        self._hold_heading = False
+        self._heading_ref: float | None = None
         self._ignoring_since: float | None = None
         self._ignoring_warned = False
 
-    def _buoy_pipeline(self, model: BuoyModel) -> BuoyPipeline:
+    def _buoy_pipeline(self, model: BuoyModel, *, on_ground: bool = False) -> BuoyPipeline:
         c = self.config
         return BuoyPipeline(
             1,
@@ -267,6 +271,7 @@ class Vessel:
             controller=c.controller,
             dt_s=c.dt_s,
             model=model,
+            on_ground=on_ground,
         )
 
     # -- link ------------------------------------------------------------------------------------------
@@ -397,11 +402,18 @@ class Vessel:
         if profile is None:
             return
         speed = profile.top_speed_mps
-        if c.kind == BUOY and c.top_speed_mps is None and speed is not None:
-            # The autopilot knows how fast full throttle goes; the estimator and the MPC model that vehicle.
-            model = BuoyModel.for_top_speed(speed)
-            self.pipeline = self.body.pipeline = self._buoy_pipeline(model)
-            logger.info("vessel model: top speed %.2f m/s at full throttle (from the autopilot)", speed)
+        on_ground = profile.known and profile.frame_class != 2  # FRAME_CLASS 2: a boat
+        if c.kind == BUOY and ((c.top_speed_mps is None and speed is not None) or on_ground):
+            # The autopilot knows how fast full throttle goes and whether it floats; the estimator and the MPC
+            # model that vehicle.
+            top = c.top_speed_mps or speed
+            model = BuoyModel() if top is None else BuoyModel.for_top_speed(top)
+            self.pipeline = self.body.pipeline = self._buoy_pipeline(model, on_ground=on_ground)
+            logger.info(
+                "vessel model: top speed %s m/s at full throttle, %s", top, "on the ground" if on_ground else "afloat"
+            )
+        if c.kind == BUOY and profile.lateral_capable:
+            self._hold_heading = True
         logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)
 
     # -- the loop --------------------------------------------------------------------------------------
@@ -459,7 +471,7 @@ class Vessel:
             self.stats.step_errors += 1
             logger.exception("control step failed (%d so far); commanding neutral", self.stats.step_errors)
             actuator = np.zeros(2)
-        self._send(self._override(actuator))
+        self._send(self._override(actuator, hold_heading=True))
         done = time.perf_counter()
         self.stats.commands += 1
         self.stats.compute_latency_s.append(done - start)
@@ -492,13 +504,28 @@ class Vessel:
         """Ask `run()` to finish (safe from a signal handler or another thread)."""
         self._stop.set()
 
-    def _override(self, actuator: np.ndarray) -> bytes:
+    def _override(self, actuator: np.ndarray, *, hold_heading: bool = False) -> bytes:
         """RC overrides for a buoy's body-frame thrust (x forward, y left; N) or an eBot's wheel speeds (left,
         right; m/s), through the autopilot's RC map and calibration (`AutopilotSession.override`)."""
         a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2)) / self.max_actuator
         if self.config.kind == BUOY:
-            return self.autopilot.override(0.0, a[0], -a[1])
+            steering = self._heading_hold_steering() if hold_heading else 0.0
+            return self.autopilot.override(steering, a[0], -a[1])
         return self.autopilot.override((a[0] - a[1]) / 2.0, (a[0] + a[1]) / 2.0, None)
+
+    def _heading_hold_steering(self) -> float:
+        """Steering (positive = turn right) that holds the hull at the heading it had when driving began: on an
+        omni frame the thrust goes in any direction, so nothing else stops the hull from wandering (issue #18).
+        Proportional, HEADING_GAIN per rad of error, at most HEADING_STEER_MAX."""
+        if not self._hold_heading:
+            return 0.0
+        heading = float(self.pipeline.estimate(self.clock.now()).heading[0])
+        if not math.isfinite(heading):
+            return 0.0
+        if self._heading_ref is None:
+            self._heading_ref = heading
+        error = math.remainder(self._heading_ref - heading, 2 * math.pi)  # > 0: turn counter-clockwise (left)
+        return float(np.clip(-HEADING_GAIN * error, -HEADING_STEER_MAX, HEADING_STEER_MAX))
 
     def _watch_autopilot(self, now: float) -> None:
         """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground

@@ -145,9 +145,9 @@ def test_stream_requests_ask_each_message_at_its_rate() -> None:
         assert msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and msg.target_component == 1
         asked[int(msg.param1)] = msg.param2
     assert asked[mavlink.MAVLINK_MSG_ID_GPS_RAW_INT] == pytest.approx(1e5)  # 10 Hz
-    assert asked[mavlink.MAVLINK_MSG_ID_SCALED_IMU] == pytest.approx(2e4)  # 50 Hz for the EKF
+    assert asked[mavlink.MAVLINK_MSG_ID_SCALED_IMU] == pytest.approx(4e4)  # 25 Hz: ArduPilot refuses 50 Hz
     groups = {m.req_stream_id: m.req_message_rate for m in _parse(b"".join(s.stream_fallback_requests()))}
-    assert groups[mavlink.MAV_DATA_STREAM_EXTENDED_STATUS] == 10 and groups[mavlink.MAV_DATA_STREAM_RAW_SENSORS] == 50
+    assert groups[mavlink.MAV_DATA_STREAM_EXTENDED_STATUS] == 10 and groups[mavlink.MAV_DATA_STREAM_RAW_SENSORS] == 25
 
 
 def test_slow_streams_are_reported_once_until_they_recover() -> None:
