@@ -272,6 +272,7 @@ class AutopilotSession:
         self.custom_mode: int | None = None
         self.armed: bool | None = None
         self.fix_type = 0
+        self.last_param_t = -math.inf  # when the last PARAM_VALUE came
         self.prearm_ok: bool | None = None  # SYS_STATUS's pre-arm check bit, where the autopilot reports it
         self.satellites = 0
         self.home: tuple[float, float] | None = None
@@ -300,6 +301,7 @@ class AutopilotSession:
                 self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             elif name == "PARAM_VALUE":
                 value = float(msg.param_value)
+                self.last_param_t = now
                 if math.isfinite(value):
                     pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
                     self.params[pid.rstrip("\x00")] = value

@@ -38,6 +38,9 @@ RESULT_WORDS = {
 }
 
 
+PARAM_QUIET_S = 0.5  # no PARAM_VALUE for this long after some came: the rest are names the autopilot lacks
+
+
 class AutopilotStartError(RuntimeError):
     """The autopilot cannot be brought into service; the message says why and what to change."""
 
@@ -156,16 +159,23 @@ class AutopilotStarter:
 
     def _read_parameters(self) -> AutopilotProfile:
         s, o = self.session, self.options
-        per_round = o.param_timeout_s / 3
+        per_round = o.param_timeout_s / 4
         for names in (list(CORE_PARAMS), None):
-            for _ in range(3):
+            for _ in range(2):
                 wanted = s.rc_param_names() if names is None else names
                 missing = [n for n in wanted if n not in s.params]
                 if not missing or self.stopped():
                     break
+                asked = s.clock()
                 for frame in s.param_requests(missing):
                     self.send(frame)
-                self._wait(per_round, lambda w=wanted: all(n in s.params for n in w))
+
+                def settled(w=wanted, asked=asked) -> bool:
+                    # every name answered, or answers came and then stopped (ArduPilot ignores unknown names)
+                    quiet = s.last_param_t > asked and s.clock() - s.last_param_t > PARAM_QUIET_S
+                    return all(n in s.params for n in w) or quiet
+
+                self._wait(per_round, settled)
         profile = s.learn()
         absent = [n for n in ("FRAME_CLASS", "FRAME_TYPE", "RC_OVERRIDE_TIME") if n not in s.params]
         if absent:

@@ -32,6 +32,7 @@ import sys
 import tomllib
 
 from behaviors.registry import BEHAVIORS
+from bob_autonomy.autopilot_start import StartOptions
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.safe_read import MAX_SETTINGS_FILE_BYTES, UnreadableFileError, describe_parse_error, read_small_file
 from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
@@ -108,6 +109,24 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--signing-key", help="MAVLink 2 signing key file (see docs/gcs-protocol.md)")
     run.add_argument("--wait-for-start", action="store_true", help="hold until the GCS sends MISSION_START")
     run.add_argument("--tlog", help="append every MAVLink frame in and out to this .tlog")
+    run.add_argument(
+        "--on-stop",
+        choices=["neutral", "hold", "disarm"],
+        default="neutral",
+        help="after the neutral commands on stop: leave the mode (neutral), set HOLD, or disarm",
+    )
+    run.add_argument(
+        "--force-arm", action="store_true", help="arm even when the autopilot's checks fail (never on water)"
+    )
+    run.add_argument(
+        "--arm-timeout", type=float, default=60.0, help="give up when the autopilot will not arm for this long, s"
+    )
+    run.add_argument(
+        "--ready-timeout", type=float, default=120.0, help="wait this long for a GPS fix and passing checks, s"
+    )
+    run.add_argument(
+        "--top-speed", type=float, help="the vessel's speed at full throttle, m/s (default: from the autopilot)"
+    )
     run.add_argument("--duration", type=float, help="stop after this many clock seconds")
     run.add_argument("--log-file", help="log here (rotated at 5 MB, 3 kept) instead of stderr")
     run.add_argument("--verbose", action="store_true")
@@ -126,7 +145,17 @@ def _setup_logging(path: str | None, verbose: bool) -> None:
 
 
 # Options that are periods, rates or limits: a zero or negative value would spin or never stop (s, or a factor).
-_POSITIVE = {"time_scale", "dt", "broadcast_period", "neighbor_expiry", "vehicle_timeout", "max_thrust_fraction"}
+_POSITIVE = {
+    "time_scale",
+    "dt",
+    "broadcast_period",
+    "neighbor_expiry",
+    "vehicle_timeout",
+    "max_thrust_fraction",
+    "arm_timeout",
+    "ready_timeout",
+    "top_speed",
+}
 
 
 def _read_config(path: str) -> dict[str, object]:
@@ -278,6 +307,10 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         signing_key_file=args.signing_key,
         autostart=not args.wait_for_start,
         tlog=args.tlog,
+        arm_timeout_s=args.arm_timeout,
+        autopilot=StartOptions(force_arm=args.force_arm, ready_timeout_s=args.ready_timeout),
+        on_stop=args.on_stop,
+        top_speed_mps=args.top_speed,
     )
 
 
@@ -309,8 +342,23 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """`--origin -35.36,149.16` as `--origin=-35.36,149.16`: argparse takes a value that starts with '-' and is
+    not a plain number for an option (issue #18)."""
+    out: list[str] = []
+    k = 0
+    while k < len(argv):
+        if argv[k] == "--origin" and k + 1 < len(argv) and argv[k + 1][:1] == "-" and argv[k + 1][1:2].isdigit():
+            out.append(f"--origin={argv[k + 1]}")
+            k += 2
+            continue
+        out.append(argv[k])
+        k += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = _join_negative_values(list(sys.argv[1:] if argv is None else argv))
     if argv and argv[0].startswith("--") and argv[0] not in ("--help", "-h"):
         argv.insert(0, "run")  # `bob-autonomy --vehicle ... --behavior ...` is `bob-autonomy run ...`
     try:

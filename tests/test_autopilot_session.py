@@ -272,3 +272,19 @@ def test_start_up_refuses_a_buoy_on_a_motorboat() -> None:
     with pytest.raises(AutopilotStartError, match="cannot move sideways"):
         starter.run()
     assert not autopilot.armed
+
+
+# -- the command line --------------------------------------------------------------------------------------
+
+
+def test_command_line_takes_a_southern_origin_and_the_autopilot_options() -> None:
+    from bob_autonomy.cli import _apply_config_file, _join_negative_values, _parser, config_from_args
+
+    argv = ["run", "--vehicle", "tcp:127.0.0.1:5760", "--system-id", "1", "--origin", "-35.36,149.16"]
+    argv += ["--behavior", "bob-rule", "--on-stop", "hold", "--force-arm", "--top-speed", "9", "--arm-timeout", "45"]
+    config = config_from_args(_apply_config_file(_parser(), _join_negative_values(argv)))
+    assert config.origin == (-35.36, 149.16)
+    assert config.on_stop == "hold" and config.autopilot.force_arm and config.top_speed_mps == 9.0
+    assert config.arm_timeout_s == 45.0
+    with pytest.raises(SystemExit):
+        _apply_config_file(_parser(), argv[:-4] + ["--on-stop", "sink"])
