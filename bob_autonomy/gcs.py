@@ -175,6 +175,7 @@ class GcsComponent(MissionProtocol):
         self.mission_retries = int(mission_retries)
         self.behavior_running = False
         self.pending_autopilot: list[AutopilotCommand] = []
+        self.to_autopilot: list[bytes] = []  # ground-station frames routed on to the vehicle
         self.gcs_lost = False
         self.last_gcs_heartbeat_s: float | None = None
         self._out: list[bytes] = []
@@ -215,12 +216,30 @@ class GcsComponent(MissionProtocol):
         make the sender a peer of its link (`Link.confirm_peer`)."""
         before = self.counters.authenticated
         for msg in self.codec.decode(data, datagram=datagram):
+            if self._for_autopilot(msg):
+                self.to_autopilot.append(bytes(msg.get_msgbuf()))
             try:
                 self._handle(msg)
             except Exception:
                 self.counters.handler_errors += 1
                 logger.exception("error handling %s", msg.get_type())
         return self.counters.authenticated - before
+
+    def _for_autopilot(self, msg: mavlink.MAVLink_message) -> bool:
+        """Whether a frame that passed the checks goes on to the vehicle, as mavlink-router routes: everything
+        addressed to this vessel's system (or to all) but not to this component alone, and everything without a
+        target (a ground station's HEARTBEAT, which the autopilot's GCS failsafe listens for)."""
+        if msg.get_srcSystem() == self.system_id and msg.get_srcComponent() == self.component_id:
+            return False  # our own frame come back
+        target = getattr(msg, "target_system", None)
+        if target is None:
+            return True
+        return target in (0, self.system_id) and getattr(msg, "target_component", 0) != self.component_id
+
+    def take_for_autopilot(self) -> list[bytes]:
+        """Frames from ground stations for the vehicle (see `_for_autopilot`), oldest first, as received."""
+        out, self.to_autopilot = self.to_autopilot, []
+        return out
 
     def outgoing(self) -> list[bytes]:
         """The frames to send since the last call (each one MAVLink frame), oldest first."""

@@ -50,6 +50,20 @@ from firmware_bridge.tlog import TlogWriter
 logger = logging.getLogger(__name__)
 
 
+def _datagrams(frames: list[bytes]) -> list[bytes]:
+    """Whole frames packed into datagrams of at most DATAGRAM_BYTES (a frame is never split)."""
+    out: list[bytes] = []
+    current = bytearray()
+    for frame in frames:
+        if current and len(current) + len(frame) > DATAGRAM_BYTES:
+            out.append(bytes(current))
+            current = bytearray()
+        current += frame
+    if current:
+        out.append(bytes(current))
+    return out
+
+
 class VehicleError(RuntimeError):
     """The vehicle cannot be driven (never answered, refused to arm); the message says which and why."""
 
@@ -58,6 +72,8 @@ ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
 HEADING_GAIN = 0.5  # steering per rad of heading error (omni frames)
 HEADING_STEER_MAX = 0.15
 STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
+MAX_ROUTED_BACKLOG = 2000  # frames; a ground-station link that cannot keep up loses the oldest
+DATAGRAM_BYTES = 1200  # MAVLink frames per UDP datagram up to this size (one frame may be larger)
 
 
 @dataclass(frozen=True)
@@ -171,6 +187,8 @@ class VesselStats:
     reading_errors: int = 0
     step_errors: int = 0
     silent_alarms: int = 0
+    routed_to_gcs: int = 0
+    routed_to_vehicle: int = 0
     estimator_resets: int = 0
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
@@ -256,6 +274,7 @@ class Vessel:
         self._alarm = False
         self.has_fix = False
         self._obeying = True
+        self._from_vehicle: list[bytes] = []  # the vehicle's frames waiting for the next ground-station write
         self._hold_heading = False
         self._heading_ref: float | None = None
         self._ignoring_since: float | None = None
@@ -281,6 +300,11 @@ class Vessel:
         if self.tlog is not None:
             self.tlog.write_message(msg)
         self.autopilot.handle(msg)
+        if self.gcs_link is not None and msg.get_srcSystem() == self.config.system_id:
+            # The vehicle's own traffic goes on to the ground station (mavlink-router's job on a companion).
+            self._from_vehicle.append(bytes(msg.get_msgbuf()))
+            if len(self._from_vehicle) > MAX_ROUTED_BACKLOG:
+                del self._from_vehicle[: len(self._from_vehicle) - MAX_ROUTED_BACKLOG]
 
     def _send(self, data: bytes) -> None:
         if self.tlog is not None:
@@ -337,19 +361,26 @@ class Vessel:
                 break
             if gcs.receive(data, datagram=True):  # frames passed the checks (signature when keyed): answer it
                 link.confirm_peer(sender)
+        for frame in gcs.take_for_autopilot():
+            self.stats.routed_to_vehicle += 1
+            self._send(frame)
         for command in gcs.take_autopilot_commands():
             if command.kind in ("arm", "disarm"):
                 self._send(self.vehicle.arm(command.kind == "arm"))
             elif command.kind == "set_mode" and command.custom_mode is not None:
                 self._send(self.vehicle.set_mode(int(command.custom_mode)))
         gcs.tick()
-        for frame in gcs.outgoing():
-            if self.tlog is not None:
+        own = gcs.outgoing()
+        if self.tlog is not None:
+            for frame in own:
                 self.tlog.write_frame(frame)
-            if link is None:
-                continue
+        routed, self._from_vehicle = self._from_vehicle, []
+        self.stats.routed_to_gcs += len(routed)
+        if link is None:
+            return
+        for datagram in _datagrams(own + routed):
             try:
-                link.write(frame)
+                link.write(datagram)
             except LinkError as error:
                 self.stats.link_errors += 1
                 logger.warning("ground-station link write failed: %s", error)

@@ -1,0 +1,191 @@
+"""Run ArduPilot's own Rover SITL (a binary built from ArduPilot's source) headless, and watch it.
+
+`ARDUPILOT_SITL` names the built `ardurover`; its default parameter files are taken from the ArduPilot tree
+it was built in (`Tools/autotest/default_params/`, or `ARDUPILOT_DEFAULTS_DIR`). Each instance runs in its
+own scratch directory with a wiped EEPROM, on instance number I: SERIAL0 (the autonomy's port) on TCP
+5760 + 10 I, SERIAL1 (the observer's) on 5762 + 10 I, RC input on a free UDP port (`--rc-in-port`).
+
+The observer is pymavlink on SERIAL1: it asks for RC_CHANNELS, SERVO_OUTPUT_RAW and GLOBAL_POSITION_INT and
+keeps what the autopilot itself says of position and inputs, the ground truth of these tests.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import subprocess
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink import mavutil
+
+MODELS = {
+    # name: (--model, default parameter files)
+    "omni": ("rover-omni3mecanum", ("rover.parm", "rover-omni3mecanum.parm")),
+    "motorboat": ("motorboat", ("rover.parm", "motorboat.parm")),
+    "skid": ("rover-skid", ("rover.parm", "rover-skid.parm")),
+    "rover": ("rover", ("rover.parm",)),
+}
+HOME = (-35.363261, 149.165230, 584.0, 0.0)
+
+
+def sitl_binary() -> Path | None:
+    path = os.environ.get("ARDUPILOT_SITL")
+    return Path(path) if path and Path(path).is_file() and os.access(path, os.X_OK) else None
+
+
+def defaults_dir(binary: Path) -> Path:
+    given = os.environ.get("ARDUPILOT_DEFAULTS_DIR")
+    if given:
+        return Path(given)
+    # build/sitl/bin/ardurover -> the tree's Tools/autotest/default_params
+    return binary.resolve().parents[3] / "Tools" / "autotest" / "default_params"
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_instance(first: int = 20) -> int:
+    """An instance number whose SERIAL0-2 TCP ports are all free."""
+    for i in range(first, first + 60):
+        if all(_port_free(5760 + 10 * i + k) for k in (0, 2, 3)):
+            return i
+    raise RuntimeError("no free ArduPilot SITL instance ports")
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Observation:
+    """What the autopilot reported on the observer's port, with wall times."""
+
+    positions: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, lat, lon, hdg deg)
+    rc: list[tuple[float, list[int]]] = field(default_factory=list)  # (t, chan1..8)
+    modes: list[tuple[float, int, bool]] = field(default_factory=list)  # (t, custom_mode, armed)
+    texts: list[str] = field(default_factory=list)
+
+
+class RoverSitl:
+    """One ArduPilot Rover SITL process and an observer on its SERIAL1. Use as a context manager."""
+
+    def __init__(self, binary: Path, model: str, workdir: Path, *, params: dict[str, float] | None = None) -> None:
+        self.binary, self.workdir = binary, workdir
+        self.model, parm_files = MODELS[model]
+        self.instance = free_instance()
+        self.serial0 = 5760 + 10 * self.instance
+        self.serial1 = self.serial0 + 2
+        self.rc_port = free_udp_port()
+        folder = defaults_dir(binary)
+        extra = workdir / "extra.parm"
+        extra.write_text("".join(f"{k} {v}\n" for k, v in (params or {}).items()))
+        self.defaults = ",".join([str(folder / f) for f in parm_files] + [str(extra)])
+        self.process: subprocess.Popen | None = None
+        self.observer = None
+        self.seen = Observation()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> RoverSitl:
+        home = ",".join(str(v) for v in HOME)
+        command = [
+            str(self.binary),
+            "-w",
+            "-I",
+            str(self.instance),
+            "--model",
+            self.model,
+            "--speedup",
+            "1",
+            "--defaults",
+            self.defaults,
+            "--serial0",
+            "tcp:0",
+            "--rc-in-port",
+            str(self.rc_port),
+            "--home",
+            home,
+        ]
+        self.log = open(self.workdir / "ardurover.log", "w")  # closed in __exit__
+        self.process = subprocess.Popen(command, cwd=self.workdir, stdout=self.log, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 30
+        while _port_free(self.serial1):
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"ArduPilot SITL did not start: see {self.workdir / 'ardurover.log'}")
+            time.sleep(0.1)
+        self.observer = mavutil.mavlink_connection(f"tcp:127.0.0.1:{self.serial1}", source_system=254)
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+        self._thread.start()
+        return self
+
+    def _watch(self) -> None:
+        obs = self.observer
+        asked = 0.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now - asked > 2.0:
+                asked = now
+                for msg_id, hz in ((65, 10), (36, 5), (33, 10)):  # RC_CHANNELS, SERVO_OUTPUT_RAW, GLOBAL_POSITION_INT
+                    obs.mav.command_long_send(1, 1, 511, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
+            try:
+                msg = obs.recv_match(blocking=True, timeout=0.2)
+            except (OSError, ConnectionError):
+                return
+            if msg is None:
+                continue
+            t, name = time.monotonic(), msg.get_type()
+            if name == "GLOBAL_POSITION_INT" and msg.get_srcComponent() == 1:
+                self.seen.positions.append((t, msg.lat * 1e-7, msg.lon * 1e-7, msg.hdg / 100.0))
+            elif name == "RC_CHANNELS":
+                self.seen.rc.append((t, [getattr(msg, f"chan{c}_raw") for c in range(1, 9)]))
+            elif name == "HEARTBEAT" and msg.get_srcComponent() == 1:
+                armed = bool(msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                self.seen.modes.append((t, msg.custom_mode, armed))
+            elif name == "STATUSTEXT":
+                self.seen.texts.append(msg.text)
+
+    def wait_initialised(self, timeout_s: float = 60.0) -> None:
+        """Until the autopilot leaves INITIALISING (custom mode 16) and has a GPS position."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.seen.modes and self.seen.modes[-1][1] != 16 and self.seen.positions:
+                return
+            time.sleep(0.2)
+        raise RuntimeError("ArduPilot SITL did not initialise")
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+        if self.observer is not None:
+            self.observer.close()
+        if self.process is not None and self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.log.close()
+
+
+def local_xy(lat: float, lon: float) -> tuple[float, float]:
+    """East, north metres from HOME (equirectangular: ample within a few hundred metres)."""
+    r = 6378137.0
+    return (
+        math.radians(lon - HOME[1]) * r * math.cos(math.radians(HOME[0])),
+        math.radians(lat - HOME[0]) * r,
+    )

@@ -1,0 +1,145 @@
+"""bob-autonomy against ArduPilot's own Rover SITL: the autopilot we did not write.
+
+Skipped unless ARDUPILOT_SITL names a built `ardurover` (see docs/ardupilot.md). Each test starts a fresh
+SITL (wiped EEPROM, the autotest default parameters of the model) and judges by what the autopilot itself
+reports on its second serial port (position, RC inputs, mode), never by our own logs.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from sitl_harness import HOME, RoverSitl, local_xy, sitl_binary
+
+from bob_autonomy.behavior_config import BehaviorChoice
+from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
+
+BINARY = sitl_binary()
+pytestmark = [
+    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
+    pytest.mark.xdist_group("realtime"),
+]
+ORIGIN = (HOME[0], HOME[1])
+LEG_S = 75.0
+
+
+def _config(sitl: RoverSitl, goal: tuple[float, float], **overrides) -> VesselConfig:
+    params = {"H": 1, "goal": list(goal), "max_speed": 1.5, "speed_scale": 1.0}
+    values = dict(
+        vehicle=f"tcp:127.0.0.1:{sitl.serial0}",
+        system_id=1,
+        origin=ORIGIN,
+        behavior=BehaviorChoice(behavior="bob-rule", params=params),
+        arm_timeout_s=60.0,
+    )
+    values.update(overrides)
+    return VesselConfig(**values)
+
+
+def _truth(sitl: RoverSitl) -> np.ndarray:
+    _t, lat, lon, _hdg = sitl.seen.positions[-1]
+    return np.array(local_xy(lat, lon))
+
+
+def _drive(sitl: RoverSitl, config: VesselConfig, seconds: float) -> tuple[list, list]:
+    """Run a Vessel for `seconds`; every 0.5 s record (time, truth xy, estimate xy, heading deg)."""
+    vessel = Vessel(config)
+    thread = threading.Thread(target=vessel.run, kwargs={"duration_s": seconds}, daemon=True)
+    thread.start()
+    track, errors = [], []
+    t0 = time.monotonic()
+    while thread.is_alive():
+        time.sleep(0.5)
+        if vessel.stats.commands and sitl.seen.positions:
+            truth = _truth(sitl)
+            estimate = vessel.pipeline.estimate(vessel.clock.now()).position[0]
+            track.append((time.monotonic() - t0, truth, sitl.seen.positions[-1][3]))
+            errors.append(float(np.hypot(*(estimate - truth))))
+    thread.join()
+    return track, errors
+
+
+def test_omni_buoy_reaches_goals_in_four_directions_and_holds_heading(tmp_path) -> None:
+    corners = [(50.0, 0.0), (50.0, 50.0), (0.0, 50.0), (0.0, 0.0)]  # east, north, west, south legs of 50 m
+    with RoverSitl(BINARY, "omni", tmp_path) as sitl:
+        sitl.wait_initialised()
+        all_errors = []
+        for goal in corners:
+            track, errors = _drive(sitl, _config(sitl, goal), LEG_S)
+            all_errors += errors
+            held = [np.hypot(*(xy - goal)) for t, xy, _ in track if t > track[-1][0] - 10.0]
+            assert held and max(held) < 5.0, f"goal {goal}: last 10 s at {held}"
+            headings = np.radians([h for _t, _xy, h in track])
+            spread = np.degrees(np.max(np.abs(np.angle(np.exp(1j * (headings - headings[0]))))))
+            assert spread < 15.0, f"heading wandered {spread:.1f} deg on the leg to {goal}"
+        assert float(np.median(all_errors)) < 2.0
+
+
+def test_sigterm_puts_the_vehicle_at_neutral_within_half_a_second(tmp_path) -> None:
+    with RoverSitl(BINARY, "omni", tmp_path) as sitl:
+        sitl.wait_initialised()
+        command = [
+            sys.executable,
+            "-m",
+            "bob_autonomy.cli",
+            "run",
+            "--vehicle",
+            f"tcp:127.0.0.1:{sitl.serial0}",
+            "--system-id",
+            "1",
+            f"--origin={ORIGIN[0]},{ORIGIN[1]}",
+            "--behavior",
+            "bob-rule",
+            "--param",
+            "H=1",
+            "--param",
+            "goal=[200,0]",
+            "--param",
+            "max_speed=1.5",
+            "--param",
+            "speed_scale=1",
+            "--log-file",
+            str(tmp_path / "vessel.log"),
+        ]
+        process = subprocess.Popen(command, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:  # wait until it drives (throttle or lateral away from trim)
+            if sitl.seen.rc and any(abs(c - 1500) > 100 for c in sitl.seen.rc[-1][1][2:4]):
+                break
+            time.sleep(0.2)
+        else:
+            process.kill()
+            pytest.fail("the vessel never drove")
+        time.sleep(3.0)
+        stopped_at = time.monotonic()
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=10) == 0
+        after = [(t - stopped_at, ch) for t, ch in sitl.seen.rc if t > stopped_at]
+        neutral = [t for t, ch in after if all(abs(c - 1500) <= 30 for c in ch[:4])]
+        assert neutral and neutral[0] < 0.5, after[:10]
+
+
+def test_a_buoy_on_a_motorboat_is_refused_with_what_to_change(tmp_path) -> None:
+    with RoverSitl(BINARY, "motorboat", tmp_path) as sitl:
+        sitl.wait_initialised()
+        vessel = Vessel(_config(sitl, (50.0, 0.0)))
+        with pytest.raises(VehicleError, match=r"cannot move sideways"):
+            vessel.run(duration_s=5.0)
+        assert not any(armed for _t, _mode, armed in sitl.seen.modes)
+
+
+def test_without_an_rc_receiver_the_vessel_still_arms_and_drives(tmp_path) -> None:
+    # A buoy has no transmitter: ArduPilot boots in radio failsafe; neutral overrides first, then arming.
+    with RoverSitl(BINARY, "omni", tmp_path, params={"SIM_RC_FAIL": 1}) as sitl:
+        sitl.wait_initialised()
+        track, _errors = _drive(sitl, _config(sitl, (20.0, 0.0)), 45.0)
+        assert track and np.hypot(*(track[-1][1] - (20.0, 0.0))) < 5.0
+        assert math.isfinite(track[-1][2])

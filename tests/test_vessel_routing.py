@@ -1,0 +1,82 @@
+"""The autonomy process routes MAVLink between its autopilot and the ground station, as mavlink-router would:
+a ground station on the vessel's GCS port sees the autopilot (component 1) beside the autonomy (191), and
+reaches it. The ground station here is pymavlink's own `mavutil` connection; the autopilot is the simulator's
+ArduPilot-like vehicle on a real UDP socket."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from pymavlink import mavutil
+from vessel_helpers import ORIGIN, SCALE, StandInVehicle
+
+from bob_autonomy.behavior_config import BehaviorChoice
+from bob_autonomy.clock import ScaledWallClock
+from bob_autonomy.vessel import Vessel, VesselConfig
+
+pytestmark = pytest.mark.xdist_group("realtime")
+
+
+@pytest.fixture
+def routed_vessel():
+    vehicle = StandInVehicle()
+    vehicle.start()
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=250, source_component=190)
+    port = gcs.port.getsockname()[1]
+    config = VesselConfig(
+        vehicle=f"udpout:127.0.0.1:{vehicle.port}",
+        system_id=1,
+        behavior=BehaviorChoice(behavior="bob-rule", params={"p0": 5.0}),
+        origin=ORIGIN,
+        time_scale=SCALE,
+        controller="simple",
+        gcs=f"udpout:127.0.0.1:{port}",
+    )
+    vessel = Vessel(config, clock=ScaledWallClock(SCALE))
+    runner = threading.Thread(target=vessel.run, daemon=True)
+    runner.start()
+    yield vehicle, gcs, vessel
+    vessel.stop()
+    runner.join(5.0)
+    gcs.close()
+    vehicle.close()
+
+
+def _wait_for(gcs, predicate, timeout_s: float = 10.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(blocking=True, timeout=0.2)
+        if msg is not None and predicate(msg):
+            return msg
+    return None
+
+
+def test_the_ground_station_sees_and_reaches_the_autopilot_through_the_vessel(routed_vessel) -> None:
+    _vehicle, gcs, vessel = routed_vessel
+    seen = set()
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and seen != {1, 191}:
+        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
+        if msg is not None and msg.get_srcSystem() == 1:
+            seen.add(msg.get_srcComponent())
+    assert seen == {1, 191}, "a ground station on the GCS port sees the autopilot and the autonomy"
+    # A parameter read addressed to the autopilot (one the vessel never reads itself) goes through the vessel
+    # and its answer comes back.
+    gcs.mav.param_request_read_send(1, 1, b"INITIAL_MODE", -1)
+    answer = _wait_for(
+        gcs, lambda m: m.get_type() == "PARAM_VALUE" and m.get_srcComponent() == 1 and m.param_id == "INITIAL_MODE"
+    )
+    assert answer is not None and answer.param_value == 0.0  # MANUAL, ArduPilot Rover's default
+    # The vessel's own component does not take frames addressed to the autopilot alone.
+    assert vessel.stats.routed_to_vehicle >= 1 and vessel.stats.routed_to_gcs > 0
+
+
+def test_a_command_for_the_autopilot_is_answered_by_the_autopilot(routed_vessel) -> None:
+    _vehicle, gcs, _vessel = routed_vessel
+    assert _wait_for(gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1) is not None
+    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
+    version = _wait_for(gcs, lambda m: m.get_type() == "AUTOPILOT_VERSION")
+    assert version is not None and version.get_srcComponent() == 1
+    assert version.capabilities & mavutil.mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
