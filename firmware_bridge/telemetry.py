@@ -51,6 +51,7 @@ class TelemetryEncoder:
     def __init__(self, system_id: int, component_id: int = mavlink.MAV_COMP_ID_AUTOPILOT1) -> None:
         self.encoder = Encoder(system_id, component_id)
         self.mav = self.encoder.mav
+        self._text_id = 0  # the id of the last chunked STATUSTEXT
 
     def pack(self, message) -> bytes:
         """Any pymavlink message as one frame from this vehicle (protocol replies: PARAM_VALUE, MISSION_*)."""
@@ -214,9 +215,20 @@ class TelemetryEncoder:
         return self.encoder.pack(message)
 
     def statustext(self, severity: int, text: str) -> bytes:
-        """STATUSTEXT (at most 50 characters, as ArduPilot truncates)."""
-        raw = text.encode("ascii", "replace")[:50]
-        return self.encoder.pack(self.mav.statustext_encode(int(severity), raw, 0, 0))
+        """STATUSTEXT as ArduPilot sends a text (GCS_Common.cpp GCS::send_textv): up to 50 characters in one message
+        with id 0; a longer text in 50-character chunks sharing a non-zero id, chunk_seq 0, 1, ... (a chunk shorter
+        than 50, possibly empty, ends it), at most 30 chunks."""
+        raw = text.encode("ascii", "replace")
+        if len(raw) <= 50:
+            return self.encoder.pack(self.mav.statustext_encode(int(severity), raw, 0, 0))
+        self._text_id = self._text_id % 65535 + 1
+        out = bytearray()
+        for seq in range(30):
+            chunk, raw = raw[:50], raw[50:]
+            out += self.encoder.pack(self.mav.statustext_encode(int(severity), chunk, self._text_id, seq))
+            if len(chunk) < 50:
+                break
+        return bytes(out)
 
     def battery_status(self, voltage_v: float, remaining_pct: float) -> bytes:
         """BATTERY_STATUS of battery 0 with the pack voltage in the first cell slot (mV), as ArduPilot reports a

@@ -1,7 +1,7 @@
 """A simulated vehicle's autopilot as a MAVLink endpoint that behaves as ArduPilot Rover does.
 
-What it does, and the ArduPilot source file behind each behaviour (docs/ardupilot.md, "The simulated
-autopilot", has the whole table):
+What it does, and the ArduPilot source file behind each behaviour (docs/simulated-autopilot.md has the whole
+table):
 - Telemetry only at its stream rates (sitl/autopilot_streams.py): Rover's MAVn_* group defaults (1 Hz) until
   asked with SET_MESSAGE_INTERVAL or REQUEST_DATA_STREAM; REQUEST_MESSAGE sends one message now. Each message
   is made from the simulated sensors' latest reading of its kind; a stream faster than its sensor goes at the
@@ -240,7 +240,10 @@ class SimulatedVehicle:
                 return b""
             result, extra = self._command_packet(msg, name == "COMMAND_INT")
             self.counters.acks += 1
-            return self.telemetry.command_ack(int(msg.command), result, *sender) + extra
+            ack = self.telemetry.command_ack(int(msg.command), result, *sender)
+            if int(msg.command) == m.MAV_CMD_GET_MESSAGE_INTERVAL:
+                return extra + ack  # sent from inside the handler, before the ACK (GCS_Common.cpp)
+            return ack + extra
         if name == "SET_MODE":
             if self._for_me(msg, component_field=None):
                 self._set_mode_common(int(msg.base_mode), int(msg.custom_mode))
@@ -460,6 +463,8 @@ class SimulatedVehicle:
             self._text(m.MAV_SEVERITY_WARNING, f"No such mode {mode}")
             return False
         needs_fix = mode in safety.NEEDS_POSITION or safety.needs_velocity(mode, self.skid_steer())
+        if mode == safety.AUTO and not self.mission.items:
+            self._text(m.MAV_SEVERITY_NOTICE, "No Mission. Can't set AUTO.")  # Rover/mode_auto.cpp _enter
         if mode not in SUPPORTED_MODES or (self.armed and needs_fix and not self.has_fix()):
             self._text(m.MAV_SEVERITY_WARNING, "Flight mode change failed")
             return False

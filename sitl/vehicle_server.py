@@ -8,14 +8,20 @@ Anyone may connect with `udpout:HOST:PORT` (the `bob-autonomy` process,
 MAVProxy, QGroundControl): a vehicle answers every peer that sent it a datagram
 in the last `PEER_TIMEOUT_S` wall seconds, so several can listen at once.
 
-Each vehicle is a `sitl.mavlink_vehicle.SimulatedVehicle` (commands, arming,
-modes with COMMAND_ACK, failsafe). Its telemetry is encoded from the sensor
-readings of `sitl.vehicle_physics.VehiclePhysics` at the sensors' own rates:
-HEARTBEAT and SYS_STATUS at 1 Hz (simulated time), GPS_RAW_INT, ATTITUDE,
-SCALED_IMU and WHEEL_DISTANCE as the sensors deliver, and GLOBAL_POSITION_INT
-with every GPS fix (what a ground station such as MAVProxy shows as the
-vehicle's position). All frames of one vehicle and one step go out in one
-datagram to each peer.
+Each vehicle is a `sitl.mavlink_vehicle.SimulatedVehicle`: an ArduPilot Rover
+as the autonomy and ground stations see it (streams, parameters, missions,
+arming, modes, failsafes; docs/simulated-autopilot.md). Its telemetry is
+encoded from the sensor readings of `sitl.vehicle_physics.VehiclePhysics`.
+With `streams="sensor-rate"` (the default until bob-autonomy asks for its
+streams): HEARTBEAT and SYS_STATUS at 1 Hz (simulated time), GPS_RAW_INT,
+ATTITUDE, SCALED_IMU and WHEEL_DISTANCE as the sensors deliver, and
+GLOBAL_POSITION_INT with every GPS fix (what a ground station such as MAVProxy
+shows as the vehicle's position); with `streams="ardupilot"`, Rover's 1 Hz
+stream defaults until asked. Replies go to the sender; telemetry and the
+vehicle's announcements (STATUSTEXT, PARAM_VALUE echoes, HOME_POSITION) to
+every live peer. All frames of one vehicle and one step go out in one datagram
+to each peer. A datagram whose handling raises is counted (`datagram_errors`),
+logged and skipped: one bad datagram never ends a fleet.
 
 Every MAVLink frame received or sent is appended to a telemetry log in
 MAVProxy's `.tlog` format: per frame, an 8-byte big-endian count of
