@@ -4,7 +4,14 @@ Packet (little-endian), at most `MAX_PACKET_BYTES` (the XBee payload limit):
 
     magic "BoB" (3 B) | version (1 B) | length of the whole packet (1 B) | agent id (uint16)
     | t (float64, s, the sender's clock) | x, y (float32, m) | heading (float32, rad) | vx, vy (float32, m/s)
-    | field count (uint8) | per memory field: value count (uint8) + values (float32 each) | CRC-16/CCITT (uint16)
+    | field count (uint8) | per memory field: value count (uint8) + values (float32 each)
+    | [version 2 only: signature trailer, timestamp (uint48) + tag (8 B), see `bob_autonomy.mesh_auth`]
+    | CRC-16/CCITT (uint16)
+
+Version 1 packets are unsigned (a mesh without a fleet key); version 2 packets carry the signature trailer
+(`bob_autonomy.mesh_auth`), 14 bytes more. A mesh with a key sends version 2 and refuses version 1; a mesh
+without one sends version 1 and reads both (it cannot check a tag, so it ignores the trailer). The CRC
+stays: it frames packets in a byte stream and catches noise before any tag is computed.
 
 Memory fields are sent in the order of the list every agent of the swarm is
 configured with (the union of the memory fields of the swarm's behaviours), so
@@ -31,11 +38,13 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from bob_autonomy.interfaces import AgentState, Pose
+from bob_autonomy.mesh_auth import DEFAULT_WINDOW_S, TRAILER_BYTES, AuthError, MeshSigner, MeshVerifier, unix_mesh_clock
 
 logger = logging.getLogger(__name__)
 
 MAGIC = b"BoB"
-VERSION = 1
+VERSION = 1  # unsigned packet
+VERSION_SIGNED = 2  # packet with the signature trailer of bob_autonomy.mesh_auth
 MAX_PACKET_BYTES = 100
 _HEAD = struct.Struct("<3sBBHdfffffB")  # magic, version, length, id, t, x, y, heading, vx, vy, field count
 _CRC = struct.Struct("<H")
@@ -57,8 +66,15 @@ def _crc(data: bytes) -> int:
     return binascii.crc_hqx(data, 0xFFFF)
 
 
-def encode_state(state: AgentState, fields: Sequence[str]) -> bytes:
-    """The packet for `state`, with its memory fields in the order of `fields` (missing fields: no values)."""
+def packet_bytes(value_counts: Sequence[int], signed: bool = False) -> int:
+    """On-air size (bytes) of a packet whose memory fields hold `value_counts` float32 values each, signed or
+    not: 38 bytes plus 1 + 4 k per field of k values, plus 14 signed."""
+    return _HEAD.size + sum(1 + 4 * int(k) for k in value_counts) + (TRAILER_BYTES if signed else 0) + _CRC.size
+
+
+def encode_state(state: AgentState, fields: Sequence[str], signer: MeshSigner | None = None) -> bytes:
+    """The packet for `state`, with its memory fields in the order of `fields` (missing fields: no values);
+    signed (version 2) by `signer` when one is given."""
     p = state.pose
     body = bytearray()
     for name in fields:
@@ -66,15 +82,31 @@ def encode_state(state: AgentState, fields: Sequence[str]) -> bytes:
         if values.size > 255:
             raise PacketError(f"memory field {name!r} has {values.size} values; at most 255 fit")
         body += struct.pack("<B", values.size) + values.tobytes()
-    length = _HEAD.size + len(body) + _CRC.size
+    length = _HEAD.size + len(body) + (TRAILER_BYTES if signer is not None else 0) + _CRC.size
     if length > MAX_PACKET_BYTES:
         raise PacketError(f"state of agent {state.agent_id} needs {length} bytes; the radio takes {MAX_PACKET_BYTES}")
     if not 0 <= state.agent_id <= 0xFFFF:
         raise PacketError(f"agent id {state.agent_id} is outside 0..65535")
     heading = _wrap(p.heading) if math.isfinite(p.heading) else p.heading
-    head = _HEAD.pack(MAGIC, VERSION, length, state.agent_id, state.t, p.x, p.y, heading, p.vx, p.vy, len(fields))
+    version = VERSION if signer is None else VERSION_SIGNED
+    head = _HEAD.pack(MAGIC, version, length, state.agent_id, state.t, p.x, p.y, heading, p.vx, p.vy, len(fields))
     packet = head + bytes(body)
+    if signer is not None:
+        packet = signer.sign(packet)
     return packet + _CRC.pack(_crc(packet))
+
+
+def signed_part(packet: bytes) -> bytes | None:
+    """The bytes a version 2 packet's tag covers, followed by the tag (everything before the CRC); None for an
+    unsigned (version 1) packet. `packet` must have passed the framing checks (PacketReader's)."""
+    if packet[3] != VERSION_SIGNED:
+        return None
+    return packet[: len(packet) - _CRC.size]
+
+
+def header_agent_id(packet: bytes) -> int:
+    """The agent id in the header of a framed packet (not yet checked against any key)."""
+    return int(_HEAD.unpack_from(packet)[3])
 
 
 def _wrap(angle: float) -> float:
@@ -97,7 +129,7 @@ def _check_frame(packet: bytes) -> None:
     magic, version, length = _HEAD.unpack_from(packet)[:3]
     if magic != MAGIC:
         raise PacketError(f"bad magic {magic!r}")
-    if version != VERSION:
+    if version not in (VERSION, VERSION_SIGNED):
         raise PacketError(f"unsupported packet version {version}")
     if length != len(packet):
         raise PacketError(f"length byte says {length} bytes, the packet has {len(packet)}")
@@ -127,16 +159,19 @@ def decode_state(packet: bytes, fields: Sequence[str]) -> AgentState:
     Raises PacketError saying what is wrong (PacketValueError for a value out of range, see the module
     docstring)."""
     _check_frame(packet)
-    _, _, length, agent_id, t, x, y, heading, vx, vy, count = _HEAD.unpack_from(packet)
+    _, version, length, agent_id, t, x, y, heading, vx, vy, count = _HEAD.unpack_from(packet)
     _check_values(agent_id, t, x, y, heading, vx, vy)
     memory: dict[str, np.ndarray] = {}
     offset = _HEAD.size
+    stop = length - _CRC.size - (TRAILER_BYTES if version == VERSION_SIGNED else 0)
+    if stop < offset:
+        raise PacketError(f"signed packet of {length} bytes has no room for its {TRAILER_BYTES}-byte trailer")
     for k in range(count):
-        if offset >= length - _CRC.size:
+        if offset >= stop:
             raise PacketError(f"memory field {k} runs past the end of the packet")
         n = packet[offset]
         end = offset + 1 + 4 * n
-        if end > length - _CRC.size:
+        if end > stop:
             raise PacketError(f"memory field {k} runs past the end of the packet")
         values = np.frombuffer(packet[offset + 1 : end], dtype="<f4").astype(float)
         if np.isinf(values).any():
@@ -196,23 +231,43 @@ class PacketReader:
 
 class LinkMesh:
     """A broadcast network (the `Network` protocol) over a byte link: a UDP socket to a radio relay or a
-    broadcast address, or a serial XBee. `fields`: the swarm's memory field names, in order. Own packets echoed
-    back are ignored; noise and broken packets are counted in `reader.bad`, well-formed packets that cannot
-    be decoded in `invalid`, of which those with a value out of range (NaN pose, ...) also in
-    `out_of_range`: none of them is ever returned."""
+    broadcast address, or a serial XBee. `fields`: the swarm's memory field names, in order. `clock`: the
+    agent's clock (s), for logs.
 
-    def __init__(self, link, agent_id: int, fields: Sequence[str], clock: Callable[[], float]) -> None:
+    key: the fleet key (32 bytes, `bob_autonomy.mesh_auth.load_mesh_key`), or None for an open mesh. With a
+    key every packet sent is signed and every packet received must pass `MeshVerifier` (signed, right tag,
+    newer than the last from its sender, within `window_s` of `mesh_clock`); refused ones are counted in
+    `verifier.rejected` by reason and claimed sender, and logged (the first ten, then every thousandth).
+    mesh_clock: the shared time base of the timestamps (`unix_mesh_clock`, UTC, on a vessel).
+
+    Own packets echoed back are ignored; noise and broken packets are counted in `reader.bad`, well-formed
+    packets that cannot be decoded in `invalid`, of which those with a value out of range (NaN pose, ...)
+    also in `out_of_range`: none of them is ever returned."""
+
+    def __init__(
+        self,
+        link,
+        agent_id: int,
+        fields: Sequence[str],
+        clock: Callable[[], float],
+        key: bytes | None = None,
+        mesh_clock: Callable[[], float] = unix_mesh_clock,
+        window_s: float = DEFAULT_WINDOW_S,
+    ) -> None:
         self.link, self.agent_id, self.fields, self.clock = link, agent_id, list(fields), clock
+        self.signer = MeshSigner(key, mesh_clock) if key is not None else None
+        self.verifier = MeshVerifier(key, mesh_clock, window_s) if key is not None else None
         self.reader = PacketReader()
         self.sent = 0
         self.received = 0
         self.invalid = 0
         self.out_of_range = 0
         self.send_errors = 0
+        self._refused_logged = 0
 
     def broadcast(self, state: AgentState) -> None:
         try:
-            self.link.write(encode_state(state, self.fields))
+            self.link.write(encode_state(state, self.fields, self.signer))
             self.sent += 1
         except OSError as error:  # the radio is down: count and carry on, the swarm tolerates lost packets
             self.send_errors += 1
@@ -230,6 +285,10 @@ class LinkMesh:
                 break
             valid = False
             for packet in self.reader.feed(data):
+                if header_agent_id(packet) == self.agent_id:
+                    continue  # our own packet echoed (or someone using our id): never a neighbour
+                if self.verifier is not None and not self._authentic(packet):
+                    continue
                 try:
                     state = decode_state(packet, self.fields)
                 except PacketError as error:
@@ -240,9 +299,34 @@ class LinkMesh:
                             logger.warning("mesh packet dropped (%d so far): %s", self.out_of_range, error)
                     continue
                 valid = True
-                if state.agent_id != self.agent_id:
-                    self.received += 1
-                    states.append(state)
+                self.received += 1
+                states.append(state)
             if valid:
                 self.link.confirm_peer(sender)  # a udpin mesh link answers only senders of valid packets
         return states
+
+    def _authentic(self, packet: bytes) -> bool:
+        try:
+            self.verifier.check(header_agent_id(packet), signed_part(packet))
+        except AuthError as error:
+            self._refused_logged += 1
+            if self._refused_logged <= 10 or self._refused_logged % 1000 == 0:
+                logger.warning("mesh packet refused (%s, %d so far): %s", error.reason, self._refused_logged, error)
+            return False
+        return True
+
+    def counters(self) -> dict:
+        """What the mesh sent, received and refused, for the vessel's log: sent, received (neighbour states
+        returned), invalid and out_of_range (see the class docstring), noise (broken frames), send_errors,
+        and with a key `rejected`: reason -> {claimed agent id -> packets} (`bob_autonomy.mesh_auth.REASONS`)."""
+        out: dict = {
+            "sent": self.sent,
+            "received": self.received,
+            "invalid": self.invalid,
+            "out_of_range": self.out_of_range,
+            "noise": self.reader.bad,
+            "send_errors": self.send_errors,
+        }
+        if self.verifier is not None:
+            out["rejected"] = self.verifier.counters()
+        return out
