@@ -51,7 +51,7 @@ class Agent:
         pose = self.body.pose()
         senses = self.body.senses()
         for state in self.network.receive():
-            self.neighbors.update(state, now)
+            self.neighbors.update(state, now, (pose.x, pose.y))  # implausible claims refused, counted
         heard = [state for state, _age in self.neighbors.fresh(now)]
         table = self._table(pose, heard)
         k = len(heard)
