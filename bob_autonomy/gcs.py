@@ -373,11 +373,13 @@ class GcsComponent(MissionProtocol):
         index = int(self.params.get("BOB_BEHAVIOR"))
         custom_mode = (1 if self.behavior_running else 0) | (index << 8)
         status = mavlink.MAV_STATE_ACTIVE if self.behavior_running else mavlink.MAV_STATE_STANDBY
+        # base_mode 0: not an autopilot, so no mode flag. MAVSDK (4.1, SystemImpl::process_heartbeat) takes the
+        # flight mode from any component's HEARTBEAT with CUSTOM_MODE_ENABLED, and read ours as Rover ACRO.
         self._queue(
             self.codec.mav.heartbeat_encode(
                 mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
                 mavlink.MAV_AUTOPILOT_INVALID,
-                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                0,
                 custom_mode,
                 status,
             )
