@@ -78,11 +78,13 @@ MISSION_MESSAGES = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSIO
 
 @dataclass
 class VehicleCounters:
-    """What a simulated vehicle has seen: RC overrides applied (armed, driving mode) and refused (disarmed, not
-    driving, wrong sender), failsafe stops (override expiries while driving and failsafe actions), commands
+    """What a simulated vehicle has seen: RC overrides applied (armed, driving mode), taken as RC input while
+    disarmed or not driving (`idle`: ArduPilot keeps them, e.g. they clear a radio failsafe) and refused (not from
+    MAV_GCS_SYSID, or MAV_OPTIONS), failsafe stops (override expiries while driving and failsafe actions), commands
     acknowledged, messages for other systems, messages refused for a bad field (`rejected`), handler errors."""
 
     commands: int = 0
+    idle: int = 0
     refused: int = 0
     failsafes: int = 0
     acks: int = 0
@@ -329,7 +331,7 @@ class SimulatedVehicle:
             self.counters.commands += 1
             self._driving_override = True
         else:
-            self.counters.refused += 1
+            self.counters.idle += 1
 
     def _trims(self) -> list[int]:
         return [self.params.get_int(f"RC{ch}_TRIM") for ch in range(1, 9)]

@@ -75,7 +75,7 @@ def _acks(data: bytes) -> list:
 def test_disarmed_vehicle_refuses_to_drive_until_armed_with_an_ack() -> None:
     v = _vehicle()
     v.receive(commands.rc_override_for_thrust((45.0, 0.0), 45.0, target_system=2), 0.0)
-    assert v.counters.refused == 1 and not v.actuator(0.0).any()
+    assert v.counters.idle == 1 and v.counters.refused == 0 and not v.actuator(0.0).any()
     (ack,) = _acks(v.receive(commands.command_long_arm(True, target_system=2), 0.1))
     assert ack.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and ack.result == mavlink.MAV_RESULT_ACCEPTED
     v.receive(commands.rc_override_for_thrust((45.0, 0.0), 45.0, target_system=2), 0.2)
