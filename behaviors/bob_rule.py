@@ -31,6 +31,15 @@ soon as any neighbour is within p0 (where the repulsion starts), so the agent
 follows the outer envelope of the group, which has shallower pockets than the
 contour where the repulsion balances the pull.
 
+Resilient consensus (`resilient_f` = F > 0, beyond the paper): the consensus sum
+keeps only what the W-MSR rule (`behaviors.resilient`) keeps of the headings (or
+courses) heard within p0: up to F on each side of the agent's own, the most
+extreme by circular difference, are left out; the factor H/N_i stays the
+paper's (N_i all neighbours heard), so F = 0 is eq. (5) exactly. With
+`align_course` the values are courses, compared with the agent's own course (its
+hull heading while it is still); a still neighbour's course (zero velocity, a
+zero term in the sum) counts as equal to the agent's own and is never left out.
+
 An agent that hears nobody has zero pair and consensus terms. Uses:
 aggregation is BobRule(H=0); goal seeking BobRule(H=1, goal=(x, y));
 leader-follower BobRule(H=1, leader_id=k): the goal is the position of agent
@@ -46,7 +55,18 @@ from typing import ClassVar
 
 import numpy as np
 
-from behaviors.base import Behavior, FloatArray, MemorySpec, View, Wish, heading_vectors, limit_speed, unit
+from behaviors.base import (
+    Behavior,
+    FloatArray,
+    MemorySpec,
+    View,
+    Wish,
+    heading_vectors,
+    limit_speed,
+    unit,
+    wrap_angle,
+)
+from behaviors.resilient import wmsr_keep
 
 
 @dataclass
@@ -78,6 +98,10 @@ class BobRule(Behavior):
         segment i-j as diameter): a local, Voronoi-like neighbourhood that keeps
         the swarm connected and gives a lattice spaced about p0, where all heard
         neighbours pull a large swarm much tighter than p0.
+
+    resilient_f: F of the W-MSR rule applied to the consensus sum (H = 1): up to
+        F headings heard within p0 on each side of the agent's own are left out
+        (0: eq. (5) as printed).
     """
 
     name: ClassVar[str] = "bob-rule"
@@ -93,8 +117,11 @@ class BobRule(Behavior):
     goal_radius_m: float = 0.0
     align_course: bool = False
     skirt: bool = False
+    resilient_f: int = 0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.resilient_f, int | np.integer) or self.resilient_f < 0:
+            raise ValueError(f"resilient_f must be a whole number >= 0, not {self.resilient_f!r}")
         if self.H not in (0, 1):
             raise ValueError(f"H must be 0 or 1, not {self.H!r}")
         if self.goal is not None and self.leader_id is not None:
@@ -119,6 +146,8 @@ class BobRule(Behavior):
             # A leader's own goal is its position: a zero bearing, so no goal term.
             to_goal = np.where(np.isfinite(goal), goal - view.position, 0.0)
             within = view.restrict(d2 <= self.p0**2)
+            if self.resilient_f:
+                within = within.restrict(self.resilient_pairs(within))
             if self.align_course:
                 heard = within.sum_pairs(unit(view.table.velocity[within.pair_j]))
                 thetas = unit(view.table.velocity[view.rows]) + heard
@@ -133,6 +162,19 @@ class BobRule(Behavior):
             v = v + self.H * pull + self.H * per_neighbour[:, None] * thetas
         velocity = limit_speed(self.speed_scale * v, self.max_speed)
         return Wish(velocity, np.full(view.n, np.nan), {"goal": goal})
+
+    def resilient_pairs(self, within: View) -> np.ndarray:
+        """(M,) mask of the pairs of `within` whose heading (or course) W-MSR keeps in the consensus sum."""
+        if self.align_course:
+            own_v, heard_v = within.table.velocity[within.rows], within.table.velocity[within.pair_j]
+            own_moving = np.hypot(own_v[:, 0], own_v[:, 1]) > 0.0
+            own = np.where(own_moving, np.arctan2(own_v[:, 1], own_v[:, 0]), within.heading)
+            heard = np.arctan2(heard_v[:, 1], heard_v[:, 0])
+            difference = wrap_angle(heard - own[within.pair_i])
+            difference = np.where(np.hypot(heard_v[:, 0], heard_v[:, 1]) == 0.0, 0.0, difference)
+        else:
+            difference = wrap_angle(within.table.heading[within.pair_j] - within.heading[within.pair_i])
+        return wmsr_keep(difference, within.pair_i, self.resilient_f)
 
     def pair_factor(self, d2: FloatArray) -> FloatArray:
         """(M,) f(d) from squared distances d2 (m^2); 0 for coincident agents."""
