@@ -273,7 +273,10 @@ class AutopilotSession:
         self.armed: bool | None = None
         self.fix_type = 0
         self.last_param_t = -math.inf  # when the last PARAM_VALUE came
-        self.prearm_ok: bool | None = None  # SYS_STATUS's pre-arm check bit, where the autopilot reports it
+        self.prearm_ok: bool | None = None
+        self.heading_rad = math.nan  # the autopilot's own attitude: heading (from east, CCW) and its rate (rad/s)
+        self.yaw_rate_radps = math.nan
+        self.attitude_t = -math.inf  # SYS_STATUS's pre-arm check bit, where the autopilot reports it
         self.satellites = 0
         self.home: tuple[float, float] | None = None
         self.version: object | None = None
@@ -310,6 +313,11 @@ class AutopilotSession:
             elif name == "STATUSTEXT":
                 text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
                 self.texts.append((now, int(msg.severity), text.rstrip("\x00")))
+            elif name == "ATTITUDE":
+                yaw, rate = float(msg.yaw), float(msg.yawspeed)
+                if math.isfinite(yaw) and math.isfinite(rate):
+                    # ours: heading from east, counter-clockwise; MAVLink: yaw from north, clockwise
+                    self.heading_rad, self.yaw_rate_radps, self.attitude_t = math.pi / 2 - yaw, -rate, now
             elif name == "SYS_STATUS":
                 bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
                 if msg.onboard_control_sensors_present & bit and msg.onboard_control_sensors_enabled & bit:

@@ -69,7 +69,8 @@ class VehicleError(RuntimeError):
 
 
 ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
-HEADING_GAIN = 0.5  # steering per rad of heading error (omni frames)
+HEADING_KP = 0.15  # steering per rad of heading error (omni frames)
+HEADING_KD = 0.05  # steering per rad/s of yaw rate
 HEADING_STEER_MAX = 0.15
 STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
 MAX_ROUTED_BACKLOG = 2000  # frames; a ground-station link that cannot keep up loses the oldest
@@ -547,16 +548,16 @@ class Vessel:
     def _heading_hold_steering(self) -> float:
         """Steering (positive = turn right) that holds the hull at the heading it had when driving began: on an
         omni frame the thrust goes in any direction, so nothing else stops the hull from wandering (issue #18).
-        Proportional, HEADING_GAIN per rad of error, at most HEADING_STEER_MAX."""
-        if not self._hold_heading:
-            return 0.0
-        heading = float(self.pipeline.estimate(self.clock.now()).heading[0])
-        if not math.isfinite(heading):
+        PD on the autopilot's own attitude (ATTITUDE: fresh and low-lag): u = -kp e + kd r, e = reference - heading
+        (rad, counter-clockwise positive), r the counter-clockwise yaw rate (rad/s), |u| <= HEADING_STEER_MAX."""
+        a = self.autopilot
+        if not self._hold_heading or not math.isfinite(a.heading_rad) or a.clock() - a.attitude_t > 1.0:
             return 0.0
         if self._heading_ref is None:
-            self._heading_ref = heading
-        error = math.remainder(self._heading_ref - heading, 2 * math.pi)  # > 0: turn counter-clockwise (left)
-        return float(np.clip(-HEADING_GAIN * error, -HEADING_STEER_MAX, HEADING_STEER_MAX))
+            self._heading_ref = a.heading_rad
+        error = math.remainder(self._heading_ref - a.heading_rad, 2 * math.pi)
+        u = -HEADING_KP * error + HEADING_KD * a.yaw_rate_radps
+        return float(np.clip(u, -HEADING_STEER_MAX, HEADING_STEER_MAX))
 
     def _watch_autopilot(self, now: float) -> None:
         """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground
