@@ -240,12 +240,13 @@ class TelemetryEncoder:
         return self.encoder.pack(message)
 
     def vfr_hud(self, groundspeed_mps: float, heading_rad: float | None, throttle_pct: float) -> bytes:
-        """VFR_HUD: ground speed m/s, heading deg 0..359 from our heading, throttle %."""
+        """VFR_HUD: ground speed m/s, heading deg 0..359 from our heading, throttle % (Rover reports reverse as a
+        negative int16 in the uint16 field, so -50 % arrives as 65486: GCS_MAVLink_Rover.cpp vfr_hud_throttle)."""
         heading = 0
         if heading_rad is not None and math.isfinite(heading_rad):
             heading = round(math.degrees(yaw_from_heading(heading_rad))) % 360
         speed = float(groundspeed_mps) if math.isfinite(groundspeed_mps) else 0.0
-        throttle = round(throttle_pct) if math.isfinite(throttle_pct) else 0
+        throttle = (max(-32768, min(32767, round(throttle_pct))) & 0xFFFF) if math.isfinite(throttle_pct) else 0
         return self.encoder.pack(self.mav.vfr_hud_encode(speed, speed, heading, throttle, 0.0, 0.0))
 
     def system_time(self, t_s: float, unix_time_s: float = 0.0) -> bytes:

@@ -713,7 +713,11 @@ class SimulatedVehicle:
             reading = getattr(self, self._READING_OF[message_id]) if message_id in self._READING_OF else None
             if message_id in self._READING_OF and not self._fresh(message_id, reading):
                 continue
-            data = self._message(message_id)
+            try:
+                data = self._message(message_id)
+            except Exception:  # a message that cannot be built is skipped and counted, never raised into a fleet
+                self.counters.errors += 1
+                data = b""
             if data:
                 out += data
                 self.schedule.sent(message_id, t_s)

@@ -166,3 +166,10 @@ def test_sensor_rate_streams_keep_the_old_behaviour() -> None:
         out += v.housekeeping(k * 0.1)
     kinds = [x.get_type() for x in parse(bytes(out))]
     assert kinds == ["HEARTBEAT", "SYS_STATUS", "HEARTBEAT", "SYS_STATUS"]
+
+
+def test_vfr_hud_reports_reverse_throttle_as_rover_does() -> None:
+    v = _buoy(armed=True, params={"MOT_SLEWRATE": 0})
+    v.receive(Gcs().override({3: 1100}), 0.0)  # full astern
+    (hud,) = of_type(run(v, 0.0, 1.0, every_step=lambda t: Gcs().override({3: 1100})), "VFR_HUD")
+    assert hud.throttle == (-100) & 0xFFFF and v.counters.errors == 0  # an int16 in the uint16 field
