@@ -184,9 +184,12 @@ class EbotPipeline:
         controller: str = "mpc",
         dt_s: float = 0.1,
         mpc_time_budget_s: float = 0.02,
+        frame: LocalFrame | None = None,
+        gps_sigma_m: float = 2.0,
     ) -> None:
         _check_choice("estimator", estimator, ESTIMATORS)
         _check_choice("controller", controller, CONTROLLERS)
+        self.frame, self.gps_sigma_m = frame, float(gps_sigma_m)
         position = np.asarray(position_m, dtype=float).reshape(-1, 2)
         self.n = position.shape[0]
         self.use_ekf, self.use_mpc = estimator == "ekf", controller == "mpc"
@@ -209,8 +212,14 @@ class EbotPipeline:
         return sum(m.fallbacks for m in self.mpcs)
 
     def feed(self, readings: SensorReadings | Iterable[object]) -> None:
-        """Fuse encoder ticks (or wheel travel, m) and compass readings."""
+        """Fuse encoder ticks (or wheel travel, m) and compass readings; GPS fixes too when the pipeline has a
+        local frame and the EKF (a rover outdoors: without wheel encoders its estimate would stay at the start)."""
         for reading in _flatten(readings):
+            if isinstance(reading, GpsFix) and self.frame is not None and self.use_ekf:
+                x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
+                sigma = np.full(len(reading.agents), self.gps_sigma_m)
+                self.estimator.update_position(reading.agents, reading.t_s, np.column_stack((x, y)), sigma)
+                continue
             if isinstance(reading, EncoderReading):
                 self.estimator.update_encoders(reading.agents, reading.t_s, reading.ticks)
             elif isinstance(reading, WheelDistance):  # metres, as ArduPilot reports wheel travel

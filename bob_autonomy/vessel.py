@@ -232,6 +232,7 @@ class Vessel:
                 estimator=c.estimator,
                 controller=c.controller,
                 dt_s=c.dt_s,
+                frame=LocalFrame(*c.origin),
             )
         else:
             raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy or ebot")

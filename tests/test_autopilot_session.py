@@ -287,4 +287,20 @@ def test_command_line_takes_a_southern_origin_and_the_autopilot_options() -> Non
     assert config.on_stop == "hold" and config.autopilot.force_arm and config.top_speed_mps == 9.0
     assert config.arm_timeout_s == 45.0
     with pytest.raises(SystemExit):
-        _apply_config_file(_parser(), argv[:-4] + ["--on-stop", "sink"])
+        _apply_config_file(_parser(), [*argv[:-4], "--on-stop", "sink"])
+
+
+def test_an_ebot_pipeline_with_a_frame_fuses_gps_fixes() -> None:
+    # A rover outdoors without wheel encoders (ArduPilot sends WHEEL_DISTANCE only with WENC_TYPE set): the
+    # estimate follows the GPS instead of staying at the start pose (issue #18).
+    from bob_autonomy.geodesy import LocalFrame
+    from bob_autonomy.pipeline import EbotPipeline
+    from firmware_bridge.readings import GpsFix
+
+    frame = LocalFrame(-35.363261, 149.165230)
+    pipeline = EbotPipeline(np.zeros((1, 2)), np.zeros(1), 0.3, 1.0, 0.001, estimator="ekf", frame=frame)
+    for k in range(40):
+        lat, lon = frame.to_geodetic(30.0, -20.0)
+        fix = GpsFix(np.array([0]), np.array([0.2 * k]), np.array([lat]), np.array([lon]))
+        pipeline.feed([fix])
+    np.testing.assert_allclose(pipeline.estimate(8.0).position[0], [30.0, -20.0], atol=1.0)
