@@ -74,10 +74,8 @@ def _free(port: int) -> bool:
     return True
 
 
-def _real() -> dict:
+def _real(workdir: Path) -> dict:
     instance = next(i for i in range(60, 200) if all(_free(5760 + 10 * i + k) for k in (0, 2, 3)))
-    workdir = Path(f"/tmp/bob-ardurover-{os.getpid()}")
-    workdir.mkdir(exist_ok=True)
     process = subprocess.Popen(
         [SITL, "-w", "-I", str(instance), "--model", "rover", "--speedup", "1", "--serial0", "tcp:0",
          "--home", "-35.363261,149.165230,584,0"],
@@ -141,8 +139,8 @@ def _simulated() -> dict:
         server.close()
 
 
-def test_the_simulated_rover_answers_as_ardupilot_rover_sitl() -> None:
-    real, simulated = _real(), _simulated()
+def test_the_simulated_rover_answers_as_ardupilot_rover_sitl(tmp_path: Path) -> None:
+    real, simulated = _real(tmp_path), _simulated()
     assert real["rates"] == {k: 1 for k in COMMON_STREAMS}, real["rates"]
     differences = {k: (real[k], simulated.get(k)) for k in real if real[k] != simulated.get(k)}
     # The one known difference: real Rover SITL cannot arm or run without RC calibration here, irrelevant to these.
