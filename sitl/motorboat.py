@@ -26,7 +26,8 @@ with m_u, m_v the masses with the surge and sway added masses (the Coriolis
 terms make a turn push the hull outwards); X = thrust along the keel - surge
 drag (c1u + c2u |u|) u + windage; Y = the steering's side force at the stern
 - sway drag (c1v + c2v |v|) v + windage; N = -lever * (side force at the stern)
-- yaw_damping * r + a random torque (a first-order Gauss-Markov process, as the
+- c_r (|u| + u_c) r (yaw damping grows with the speed, as the hull's lift does; u_c = `yaw_damping_floor_fraction`
+of top speed damps it at rest) + a random torque (a first-order Gauss-Markov process, as the
 buoy's). Windage is 0.5 rho Cd A |w - V| (w - V) on the air velocity relative to
 the hull, w the wind and V the velocity over ground (isotropic, as the buoy's).
 The steering acts through the actual steering angle, which follows the command
@@ -39,9 +40,11 @@ at most `steering_slew_per_s` (full lock to lock in 2 / slew s):
     top speed). No way, no steering; going astern, it reverses.
 Top speed and turning radius are what a scenario gives: full thrust T_max is
 the surge drag plus the windage at `top_speed_mps` in still water and air, and
-the yaw damping is set so that the steady turn at full throttle and full
+the yaw damping c_r is set so that the steady turn at full throttle and full
 steering has radius `turning_radius_m` (solved from the steady-state equations
-with the sway, see `steady_turn`). ArduPilot's own SITL motorboat
+with the sway, see `steady_turn`). With the damping growing with the speed the
+turning radius stays within about 20 % of that at any throttle (a rudder's
+grows as the boat slows: no way on, no steering). ArduPilot's own SITL motorboat
 (libraries/SITL/SIM_Sailboat.cpp, class MotorBoat) is kinematic in yaw (yaw rate
 = speed / turning radius) and has no sway; this model keeps the sway, since
 the skid in a turn is what the autonomy has to live with.
@@ -69,6 +72,7 @@ from scipy.optimize import brentq, fsolve
 from sitl.dynamics import FloatArray, _init_planar_state, _norm, wrap_angle
 
 STEERING_KINDS = ("outboard", "rudder")
+MAX_TURN_ACCEL_MPS2 = 4.0  # lateral acceleration of the hardest turn at top speed, ~0.4 g
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,7 @@ class MotorboatParams:
     air_density_kgpm3, windage_area_m2, air_drag_coefficient: windage 0.5 rho Cd A.
     wind_drift_factor: the wind-driven surface current as a fraction of the wind (as the buoy's).
     yaw_torque_std_nm, yaw_torque_time_constant_s: the random yaw torque (std N m, correlation time s).
+    yaw_damping_floor_fraction: u_c / top speed, the yaw damping at rest (module docstring).
     max_substep_s: longest integration sub-step, s.
     """
 
@@ -113,6 +118,7 @@ class MotorboatParams:
     wind_drift_factor: float = 0.03
     yaw_torque_std_nm: float = 0.1
     yaw_torque_time_constant_s: float = 5.0
+    yaw_damping_floor_fraction: float = 0.1
     max_substep_s: float = 0.02
 
     def __post_init__(self) -> None:
@@ -122,6 +128,13 @@ class MotorboatParams:
             raise ValueError(f"top_speed_mps must be 0.1..30 m/s, got {self.top_speed_mps!r}")
         if not (0.3 <= self.turning_radius_m <= 500.0):
             raise ValueError(f"turning_radius_m must be 0.3..500 m, got {self.turning_radius_m!r}")
+        if self.top_speed_mps**2 / self.turning_radius_m > MAX_TURN_ACCEL_MPS2:
+            least = self.top_speed_mps**2 / MAX_TURN_ACCEL_MPS2
+            raise ValueError(
+                f"turning radius {self.turning_radius_m:g} m at top speed {self.top_speed_mps:g} m/s would pull "
+                f"{self.top_speed_mps**2 / self.turning_radius_m:.1f} m/s^2; a small hull turns at most "
+                f"{MAX_TURN_ACCEL_MPS2:g} m/s^2 (0.4 g): give turning_radius_m >= {least:.2f} m"
+            )
         positive = (
             self.mass_kg, self.yaw_inertia_kgm2, self.lever_m, self.steering_slew_per_s, self.max_substep_s,
             self.yaw_torque_time_constant_s, self.sway_linear_drag_n_per_mps + self.sway_quadratic_drag_n_per_mps2,
@@ -158,8 +171,13 @@ class MotorboatParams:
         return self.max_thrust_n / self.top_speed_mps**2
 
     @property
-    def yaw_damping_nms_per_rad(self) -> float:
-        """Linear yaw damping, N m per rad/s, that gives `turning_radius_m` (see `steady_turn`)."""
+    def yaw_damping_floor_mps(self) -> float:
+        """u_c, m/s: the yaw damping is c_r (|u| + u_c) r."""
+        return self.yaw_damping_floor_fraction * self.top_speed_mps
+
+    @property
+    def yaw_damping_coefficient(self) -> float:
+        """c_r, N m per rad/s per m/s, that gives `turning_radius_m` (see `steady_turn`)."""
         return _yaw_damping(self)
 
 
@@ -190,8 +208,8 @@ def steady_turn(p: MotorboatParams, yaw_rate_radps: float) -> tuple[float, float
 
 @lru_cache(maxsize=256)
 def _yaw_damping(p: MotorboatParams) -> float:
-    """Solve |r| = speed(r) / R for the steady full-steering turn; the yaw balance N = damping * r then gives the
-    damping (N = lever * side force, the side force of that steady motion)."""
+    """Solve |r| = speed(r) / R for the steady full-steering turn; the yaw balance lever * side force =
+    c_r (|u| + u_c) |r| of that steady motion then gives c_r."""
     radius = p.turning_radius_m
 
     def gap(rate: float) -> float:
@@ -202,7 +220,7 @@ def _yaw_damping(p: MotorboatParams) -> float:
     rate = brentq(gap, 1e-6, top, xtol=1e-12)
     u, _ = steady_turn(p, rate)
     _, side = _side_force(p, p.max_thrust_n, u, 1.0)
-    return p.lever_m * abs(side) / rate
+    return p.lever_m * abs(side) / (rate * (abs(u) + p.yaw_damping_floor_mps))
 
 
 def params_for(top_speed_mps: float, turning_radius_m: float, steering: str = "outboard") -> MotorboatParams:
@@ -241,7 +259,7 @@ class MotorboatDynamics:
         self.m_u, self.m_v, self.inertia = column("surge_mass_kg"), column("sway_mass_kg"), column("yaw_inertia_kgm2")
         self.c1u, self.c2u = column("surge_linear_drag_n_per_mps"), column("surge_quadratic_drag_n_per_mps2")
         self.c1v, self.c2v = column("sway_linear_drag_n_per_mps"), column("sway_quadratic_drag_n_per_mps2")
-        self.yaw_damping = column("yaw_damping_nms_per_rad")
+        self.yaw_damping, self.yaw_floor = column("yaw_damping_coefficient"), column("yaw_damping_floor_mps")
         self.lever, self.max_delta = column("lever_m"), np.radians(column("max_steer_angle_deg"))
         self.slew, self.reverse = column("steering_slew_per_s"), column("reverse_thrust_fraction")
         self.air, self.drift_factor = column("air_drag_n_per_mps2"), column("wind_drift_factor")
@@ -294,7 +312,7 @@ class MotorboatDynamics:
         target, t_a = cmd[a, 1], thrust[a]
         m_u, m_v, inertia = self.m_u[a], self.m_v[a], self.inertia[a]
         c1u, c2u, c1v, c2v = self.c1u[a], self.c2u[a], self.c1v[a], self.c2v[a]
-        damping, lever, max_delta = self.yaw_damping[a], self.lever[a], self.max_delta[a]
+        damping, floor, lever, max_delta = self.yaw_damping[a], self.yaw_floor[a], self.lever[a], self.max_delta[a]
         air, outboard, rudder, torque = self.air[a], self.outboard[a], self.rudder[a], self.yaw_torque_nm[a]
         v_start = v_ground.copy()
 
@@ -316,7 +334,7 @@ class MotorboatDynamics:
             moment = -lever * side + torque
             u_new = (u + h * force_x / m_u) / (1.0 + h * (c1u + c2u * np.abs(u)) / m_u)
             v_new = (v + h * force_y / m_v) / (1.0 + h * (c1v + c2v * np.abs(v)) / m_v)
-            r = (r + h * moment / inertia) / (1.0 + h * damping / inertia)
+            r = (r + h * moment / inertia) / (1.0 + h * damping * (np.abs(u) + floor) / inertia)
             heading = heading + h * r
             c, s = np.cos(heading), np.sin(heading)
             v_ground = water + np.column_stack((c * u_new - s * v_new, s * u_new + c * v_new))

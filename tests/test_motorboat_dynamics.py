@@ -27,7 +27,7 @@ def _run(boat: MotorboatDynamics, command, seconds: float, dt: float = 0.1, **kw
 
 @pytest.mark.parametrize(
     ("top_speed", "radius", "steering"),
-    [(2.0, 3.0, "outboard"), (2.0, 3.0, "rudder"), (9.0, 1.0, "outboard"), (1.0, 8.0, "rudder")],
+    [(2.0, 3.0, "outboard"), (2.0, 3.0, "rudder"), (9.0, 25.0, "outboard"), (3.0, 2.25, "outboard"), (1.0, 8.0, "rudder")],
 )
 def test_top_speed_and_turning_radius_are_what_the_scenario_gives(top_speed, radius, steering) -> None:
     boat = _boat(params_for(top_speed, radius, steering))
@@ -86,5 +86,7 @@ def test_non_finite_commands_are_neutral_and_bad_parameters_are_refused() -> Non
     for bad in ({"steering": "jet"}, {"top_speed_mps": 0.0}, {"turning_radius_m": 0.1}, {"max_steer_angle_deg": 90}):
         with pytest.raises(ValueError):
             MotorboatParams(**bad)
+    with pytest.raises(ValueError, match=r"turning_radius_m >= 20.25 m"):
+        params_for(9.0, 5.0)  # 16 m/s^2 sideways: no small hull turns like that
     with pytest.raises(ValueError, match="parameter sets"):
         MotorboatDynamics([MotorboatParams()], np.zeros((2, 2)), np.zeros(2), np.random.default_rng(0))
