@@ -10,7 +10,7 @@ turns into MAVLink.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from bob_autonomy.ekf import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
 from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.motorboat_control import MotorboatCommand, MotorboatController, MotorboatModel, MotorboatMpc
 from bob_autonomy.mpc import BuoyMpc, DiffDriveMpc
 from bob_autonomy.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
 from bob_autonomy.velocity_control import BuoyModel, BuoyVelocityController, DiffDriveController
@@ -253,3 +254,100 @@ def _update_compass(estimator, reading: CompassReading, timed: bool) -> None:
         estimator.update_compass(reading.agents, reading.heading_rad, reading.t_s)
     else:
         estimator.update_compass(reading.agents, reading.heading_rad)
+
+
+class MotorboatPipeline(BuoyPipeline):
+    """Estimator (alpha-beta or EKF) and steering + throttle control (proportional or MPC) of n motorboats.
+
+    A motorboat is estimated as a buoy is (GPS, compass, IMU; the EKF's drift state is the water's), with the
+    surge model of its MotorboatModel as the EKF's drag model (the thrust acts along the keel; the EKF's drag
+    balance is isotropic, so its sigma is widened to `drag_balance_sigma_mps2` for the sway it does not know).
+    The controller is `bob_autonomy.motorboat_control`. Commands are (throttle, steering) per boat, each in
+    [-1, 1], as `AutopilotSession.override` sends them. `thrust()` returns these commands too, so that the vessel
+    loop drives every pipeline that estimates like a buoy alike.
+
+    models: one MotorboatModel per boat (or one for all); the EKF uses the first one's surge model.
+    max_throttle (n,): the throttle each boat may use (a weak battery: below 1). Other arguments as BuoyPipeline.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        frame: LocalFrame,
+        models: MotorboatModel | Sequence[MotorboatModel] | None = None,
+        max_throttle: FloatArray | float = 1.0,
+        *,
+        estimator: str = "simple",
+        controller: str = "mpc",
+        dt_s: float = 0.1,
+        mpc_time_budget_s: float = 0.02,
+        drag_balance_sigma_mps2: float = 0.3,
+    ) -> None:
+        _check_choice("controller", controller, CONTROLLERS)
+        each = [models or MotorboatModel()] * n if not isinstance(models, Sequence) else list(models)
+        if len(each) != n:
+            raise ValueError(f"{len(each)} motorboat models for {n} boats")
+        self.models = each
+        first = each[0] if each else MotorboatModel()
+        drag = (first.linear_drag_n_per_mps, first.quadratic_drag_n_per_mps2)
+        surge = BuoyModel(first.mass_kg, *drag, first.max_thrust_n)
+        self.drag_balance_sigma_mps2 = drag_balance_sigma_mps2
+        super().__init__(n, frame, np.ones(n), estimator=estimator, controller="simple", dt_s=dt_s, model=surge)
+        self.use_mpc = controller == "mpc"
+        self.max_throttle = np.broadcast_to(np.asarray(max_throttle, dtype=float), (n,)).copy()
+        self.max_thrust_n = np.array([m.max_thrust_n for m in each]) * self.max_throttle
+        self.controllers = [MotorboatController(m) for m in each]
+        step = max(dt_s, 0.5)  # the MPC plans in steps of at least 0.5 s (6 s ahead), called every dt_s
+        budget = mpc_time_budget_s
+        self.mpcs = [MotorboatMpc(m, step_s=step, time_budget_s=budget) for m in each] if self.use_mpc else []
+        self.last_commands: list[MotorboatCommand | None] = [None] * n
+        self._heading_t = np.full(n, np.nan)  # for the yaw rate of the simple estimator (heading differences)
+        self._heading = np.full(n, np.nan)
+        self._yaw_rate = np.zeros(n)
+
+    def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
+        if not self.use_ekf:
+            return AlphaBetaBuoyEstimator(self.n)
+        params = BuoyEkfParams(model=self.model, drag_balance_sigma_mps2=self.drag_balance_sigma_mps2)
+        return BuoyEkfBank(self.n, params=params)
+
+    def yaw_rate(self, t_s: float) -> FloatArray:
+        """(n,) yaw rate, rad/s: the EKF's, or the filtered heading differences of the simple estimator."""
+        if self.use_ekf:
+            return np.nan_to_num(self.estimator.x[:, 5].copy())
+        heading = self.estimate(t_s).heading
+        dt = t_s - self._heading_t
+        fresh = np.isfinite(heading) & np.isfinite(self._heading) & (dt > 1e-6)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = np.where(fresh, np.remainder(heading - self._heading + np.pi, 2 * np.pi) - np.pi, 0.0) / dt
+        self._yaw_rate = np.where(fresh, 0.5 * self._yaw_rate + 0.5 * np.nan_to_num(rate), self._yaw_rate)
+        self._heading, self._heading_t = heading.copy(), np.full(self.n, float(t_s))
+        return self._yaw_rate.copy()
+
+    def commands(self, wish_mps: FloatArray, t_s: float, *, idle: bool = False) -> FloatArray:
+        """(n, 2) throttle and steering (each in [-1, 1]; steering > 0 turns to starboard) towards the wished
+        velocities (n, 2) m/s over ground. idle: before the mission starts every boat is left at neutral."""
+        estimate = self.estimate(t_s)
+        rate = self.yaw_rate(t_s)
+        out = np.zeros((self.n, 2))
+        if idle:
+            self.thrust_world_n = np.zeros((self.n, 2))
+            return out
+        water = self.drift()
+        for k in range(self.n):
+            args = (wish_mps[k], estimate.velocity[k], water[k], estimate.heading[k], rate[k])
+            if self.use_mpc:
+                cmd = self.mpcs[k].solve(*args, max_throttle=self.max_throttle[k])
+            else:
+                cmd = self.controllers[k].command(*args, limit=self.max_throttle[k])
+            self.last_commands[k] = cmd
+            out[k] = cmd.throttle, cmd.steering
+        heading = np.nan_to_num(estimate.heading)
+        force = out[:, 0] * np.array([m.max_thrust_n for m in self.models])
+        self.thrust_world_n = force[:, None] * np.column_stack((np.cos(heading), np.sin(heading)))
+        return out
+
+    def thrust(self, wish_mps: FloatArray, t_s: float, *, idle: bool = False) -> FloatArray:
+        """The motorboat commands (throttle, steering), as `commands`: what the vessel loop asks every pipeline
+        that estimates like a buoy for."""
+        return self.commands(wish_mps, t_s, idle=idle)
