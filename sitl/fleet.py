@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from behaviors.base import Behavior, MemorySpec, Senses, View, Wish
 from sitl.bodies import BODY_KINDS, EBOT, KinematicBodies
 from sitl.medium import BroadcastMedium
+from sitl.mesh_security import medium_security
 from sitl.scenario import Event, Scenario, ScenarioError
 from sitl.world import FloatArray, World, points_in_polygon, polygon_segments
 
@@ -143,7 +144,8 @@ class LockstepFleet:
         net = scenario.network
         radio_rng = np.random.default_rng([scenario.seed, 1])  # its own stream: radio draws never shift the rest
         self.medium = BroadcastMedium(
-            self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory, net.channel(), radio_rng
+            self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory, net.channel(), radio_rng,
+            security=medium_security(scenario, self.group_of),  # key, plausibility, intruders, faults
         )
         self.table = self.medium.table
         self.table.ids[: self.n] = np.arange(self.n)
