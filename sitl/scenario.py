@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from bob_autonomy.behavior_config import BehaviorChoice, build_dataclass
 from bob_autonomy.geodesy import LocalFrame
 from sitl.environment import CurrentSpec, Environment, WindSpec
+from sitl.mesh_security import MeshSecuritySpec
 from sitl.radio import RadioChannel
 from sitl.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec
 
@@ -162,6 +163,7 @@ class NetworkSpec(Model):
     broadcast_period_s: PositiveFloat = 0.1
     expiry_s: PositiveFloat = 1.0
     radio: dict[str, float] | None = None
+    security: MeshSecuritySpec = MeshSecuritySpec()  # fleet key, plausibility, intruders, faults: sitl.mesh_security
 
     @model_validator(mode="after")
     def _radio(self) -> NetworkSpec:
@@ -303,6 +305,9 @@ class Scenario(Model):
             raise ValueError(f"group names must be unique, got {names}")
         if self.resize_group is not None and self.resize_group not in names:
             raise ValueError(f"resize_group {self.resize_group!r} is not a group ({names})")
+        problem = self.network.security.reference_problem(names, sum(g.count for g in self.groups))
+        if problem:
+            raise ValueError(problem)
         for k, event in enumerate(self.events):
             if event.group is not None and event.group not in names:
                 raise ValueError(f"events[{k}].group {event.group!r} is not a group ({names})")
