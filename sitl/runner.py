@@ -51,7 +51,7 @@ def simulate(scenario: Scenario, progress: bool = False) -> RunResult:
         metrics["estimation"] = estimation_errors(recorder)
         metrics["vehicle_link"] = fleet.bodies.link_counters()
     medium = fleet.medium
-    metrics["network"] = {"sent": medium.sent, "delivered": medium.delivered, "dropped": medium.dropped}
+    metrics["network"] = medium.counters()  # sent, delivered, dropped, packet_bytes, mesh rejections
     return RunResult(fleet, recorder, metrics)
 
 
