@@ -1,15 +1,33 @@
-"""The `bob-sitl` command: list and run scenarios, sweep them, run them as a fleet of processes."""
+"""The `bob-sitl` command: list and run scenarios, sweep them, run them as a fleet of processes.
+
+Exit status: 0 when every criterion passed, 1 when one failed, 2 for a bad
+scenario, option or output directory (one message naming the file or option
+and the key), 130 when a run or sweep is interrupted (Ctrl-C or SIGTERM; nothing
+is written).
+Runs larger than `sitl.budget`'s limits are refused before they start unless
+`--force` is given.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
+from sitl.budget import MAX_AGENT_STEPS, MAX_AGENTS, MAX_TRAJECTORY_ROWS, check_run_size
 from sitl.runner import run_to_directory
 from sitl.scenario import ScenarioError, load_scenario, packaged_scenarios
 from sitl.sweep import run_sweep
+
+FORCE_HELP = (
+    f"run even beyond the size limits (at most {MAX_AGENTS:,} agents, {MAX_AGENT_STEPS['kinematic']:,.0f} "
+    f"agent-steps kinematic, {MAX_AGENT_STEPS['physics']:,.0f} physics, {MAX_TRAJECTORY_ROWS:,.0f} trajectory rows)"
+)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -35,6 +53,7 @@ def _parser() -> argparse.ArgumentParser:
         help="vehicle link (physics): MAVLink bytes through firmware_bridge, or readings handed over directly",
     )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--force", action="store_true", help=FORCE_HELP)
     fleet = sub.add_parser(
         "fleet",
         help="run a scenario as a fleet of processes: simulated vehicles and radio on UDP, one bob-autonomy per vessel",
@@ -61,6 +80,7 @@ def _parser() -> argparse.ArgumentParser:
         help="leave --gcs-port to your mission script (bob_autonomy.mission); the scenario may not have events",
     )
     fleet.add_argument("--quiet", action="store_true", help="no progress bar")
+    fleet.add_argument("--force", action="store_true", help=FORCE_HELP)
     sweep = sub.add_parser("sweep", help="run a scenario over swarm sizes and seeds; plot metrics against size")
     sweep.add_argument("scenario", metavar="NAME|FILE")
     sweep.add_argument("--agents", type=int, nargs="+", required=True, help="swarm sizes")
@@ -68,7 +88,30 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--plot", nargs="+", default=[], metavar="METRIC", help="scalar metrics to plot")
     sweep.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/NAME-sweep)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument("--force", action="store_true", help=FORCE_HELP)
     return parser
+
+
+def _fail(message: object) -> int:
+    print(f"bob-sitl: {message}", file=sys.stderr)
+    return 2
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt while running, so that the clean-up of a Ctrl-C runs too."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,19 +124,30 @@ def main(argv: list[str] | None = None) -> int:
         return _sweep(args)
     if args.command == "fleet":
         return _fleet(args)
+    return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         scenario = load_scenario(args.scenario).with_overrides(
             args.agents, args.seed, args.duration, args.fidelity, args.estimator, args.controller, args.link
         )
+        check_run_size(scenario, args.scenario, force=args.force)
     except ScenarioError as error:
-        print(f"bob-sitl: {error}", file=sys.stderr)
-        return 2
+        return _fail(error)
     out = args.out or Path("runs") / scenario.name
     try:
-        result = run_to_directory(scenario, out, progress=not args.quiet)
-    except (ScenarioError, FileExistsError) as error:
-        print(f"bob-sitl: {error}", file=sys.stderr)
-        return 2
+        with _sigterm_interrupts():
+            result = run_to_directory(scenario, out, progress=not args.quiet, force=args.force)
+    except ScenarioError as error:
+        return _fail(error)
+    except FileExistsError as error:  # the output directory (OutputDirectoryError), its message names it
+        return _fail(error)
+    except OSError as error:
+        return _fail(f"cannot write the outputs to {out}: {error}")
+    except KeyboardInterrupt:
+        print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
+        return 130
     summary = {k: v for k, v in result.metrics.items() if not isinstance(v, dict) or k == "criteria"}
     print(json.dumps(summary, indent=2))
     print(f"outputs in {out}/", file=sys.stderr)
@@ -110,6 +164,7 @@ def _fleet(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario).with_overrides(
             args.agents, args.seed, args.duration, "physics", args.estimator, args.controller
         )
+        check_run_size(scenario, args.scenario, force=args.force)
         options = ProcessOptions(
             speed=args.speed,
             base_port=args.base_port,
@@ -126,6 +181,8 @@ def _fleet(args: argparse.Namespace) -> int:
     except (ScenarioError, ProcessFleetError, FileExistsError) as error:
         print(f"bob-sitl: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # ports, processes or the outputs
+        return _fail(f"the fleet run failed: {error}")
     summary = {k: v for k, v in result.metrics.items() if not isinstance(v, dict) or k in ("criteria", "realtime")}
     print(json.dumps(summary, indent=2))
     print(f"outputs in {out}/", file=sys.stderr)
@@ -133,19 +190,29 @@ def _fleet(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    if args.runs < 1:
+        return _fail(f"--runs must be at least 1, got {args.runs}")
+    out = args.out
     try:
         scenario = load_scenario(args.scenario)
-        rows = run_sweep(
-            scenario,
-            args.agents,
-            list(range(1, args.runs + 1)),
-            args.out or Path("runs") / f"{scenario.name}-sweep",
-            args.plot,
-            progress=not args.quiet,
-        )
-    except ScenarioError as error:
-        print(f"bob-sitl: {error}", file=sys.stderr)
-        return 2
+        out = out or Path("runs") / f"{scenario.name}-sweep"
+        with _sigterm_interrupts():
+            rows = run_sweep(
+                scenario,
+                args.agents,
+                range(1, args.runs + 1),
+                out,
+                args.plot,
+                progress=not args.quiet,
+                force=args.force,
+            )
+    except (ScenarioError, FileExistsError) as error:
+        return _fail(error)
+    except OSError as error:
+        return _fail(f"cannot write the outputs to {out}: {error}")
+    except KeyboardInterrupt:
+        print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
+        return 130
     print(f"{len(rows)} runs, {sum(r['passed'] for r in rows)} passed their criteria")
     return 0
 

@@ -4,27 +4,48 @@ A scenario says what world, which agents (groups with a body and a behaviour),
 which network, which scheduled events and which metrics. `load_scenario` reads
 a packaged name or a path; `Scenario.model_validate` builds one from a dict
 (as the examples do in Python).
+
+What a scenario may hold, so that no file can crash or hang a run:
+every number is finite (nan and inf are refused everywhere, also inside the
+free-form tables: behaviour parameters, sensors, wind, current); positions are
+within +-1e7 m of the origin; `name` is a single safe file name (it names the
+default output directory runs/NAME); a room is a simple polygon (at least 3
+distinct vertices, no crossing or touching edges, non-zero area); event agent
+indices exist; the seed is a non-negative 64-bit integer. Files are read as a
+regular file of at most 16 MiB. How large a run may be (agents, agent-steps)
+is `sitl.budget`'s concern.
 """
 
 from __future__ import annotations
 
+import math
+import re
 import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from bob_autonomy.behavior_config import BehaviorChoice, build_dataclass
 from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.safe_read import UnreadableFileError, describe_parse_error, read_small_file
 from sitl.environment import CurrentSpec, Environment, WindSpec
 from sitl.mesh_security import MeshSecuritySpec
 from sitl.radio import RadioChannel
 from sitl.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec
 
+MAX_COORDINATE_M = 1e7  # |x|, |y| of any position: 10,000 km, beyond any local frame (and far from overflow)
+MAX_POLYGON_VERTICES = 1000
+MAX_SCENARIO_FILE_BYTES = 16 << 20  # room for a gridded current; packaged scenarios are about 2 kB
+SAFE_NAME = re.compile(r"[^\W_][\w.+-]{0,99}")  # one path component: no '/', '\\', '..', leading '.' or '-'
+# Every model refuses nan and inf (pydantic's allow_inf_nan=False, for every float field).
+MODEL_CONFIG = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
 PositiveFloat = Annotated[float, Field(gt=0)]
-Point = tuple[float, float]
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE_M, le=MAX_COORDINATE_M)]
+Point = tuple[Coordinate, Coordinate]
 
 
 class ScenarioError(ValueError):
@@ -32,7 +53,78 @@ class ScenarioError(ValueError):
 
 
 class Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = MODEL_CONFIG
+
+
+def non_finite_numbers(data: Any, limit: int = 20) -> list[tuple[str, float]]:
+    """(dotted key, value) of up to `limit` nan or infinite floats anywhere in nested dicts and lists.
+
+    Iterative, so a deeply nested value cannot exhaust the stack. Used for the free-form tables (behaviour
+    parameters, sensors, wind, current) that the typed fields' allow_inf_nan=False does not reach.
+    """
+    found: list[tuple[str, float]] = []
+    stack: list[tuple[str, Any]] = [("", data)]
+    while stack and len(found) < limit:
+        key, value = stack.pop()
+        if isinstance(value, float | np.floating) and not math.isfinite(value):
+            found.append((key or "(top level)", float(value)))
+        elif isinstance(value, dict):
+            stack.extend((f"{key}.{k}" if key else str(k), v) for k, v in reversed(list(value.items())))
+        elif isinstance(value, list | tuple):
+            stack.extend((f"{key}.{i}" if key else str(i), v) for i, v in reversed(list(enumerate(value))))
+    return found
+
+
+def polygon_problem(points: Any) -> str | None:
+    """Why `points` ((n, 2), m) is not a simple polygon with non-zero area, or None when it is.
+
+    Simple: no two edges cross or touch except consecutive edges at their shared vertex (which must not
+    fold back along each other). Orientation tests in numpy over all pairs of edges (n <= 1000).
+    """
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    if n < 3:
+        return f"needs at least 3 vertices, got {n}"
+    a, b = p, np.roll(p, -1, axis=0)  # edge k runs from vertex k to vertex k + 1 (the last closes the ring)
+    same = np.flatnonzero(np.all(a == b, axis=1))
+    if same.size:
+        k = int(same[0])
+        return f"vertices {k} and {(k + 1) % n} are the same point {tuple(p[k].tolist())}"
+    centred = p - p.mean(axis=0)
+    if np.linalg.matrix_rank(centred, tol=1e-12 * float(np.abs(centred).max())) < 2:
+        return "has zero area (all its vertices are on one line)"
+
+    def orient(o: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return np.sign((q[:, 0] - o[:, 0]) * (r[:, 1] - o[:, 1]) - (q[:, 1] - o[:, 1]) * (r[:, 0] - o[:, 0]))
+
+    def on_segment(o: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:  # r on segment o-q, if collinear
+        return (np.minimum(o, q) <= r).all(axis=1) & (r <= np.maximum(o, q)).all(axis=1)
+
+    # Consecutive edges k, k + 1 share a vertex; they overlap when the second folds back along the first.
+    nxt = np.roll(b, -1, axis=0)
+    fold = (orient(a, b, nxt) == 0) & (np.sum((b - a) * (nxt - b), axis=1) < 0)
+    if fold.any():
+        k = int(np.flatnonzero(fold)[0])
+        return f"edges {k} and {(k + 1) % n} fold back on each other at vertex {(k + 1) % n}"
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))  # the first and last edges share vertex 0
+    i, j = i[keep], j[keep]
+    d1, d2 = orient(a[j], b[j], a[i]), orient(a[j], b[j], b[i])
+    d3, d4 = orient(a[i], b[i], a[j]), orient(a[i], b[i], b[j])
+    meet = (d1 * d2 < 0) & (d3 * d4 < 0)
+    meet |= (d1 == 0) & on_segment(a[j], b[j], a[i])
+    meet |= (d2 == 0) & on_segment(a[j], b[j], b[i])
+    meet |= (d3 == 0) & on_segment(a[i], b[i], a[j])
+    meet |= (d4 == 0) & on_segment(a[i], b[i], b[j])
+    if meet.any():
+        k = int(np.flatnonzero(meet)[0])
+        e, f = int(i[k]), int(j[k])
+        return f"crosses itself: edge {e} (vertex {e} to {(e + 1) % n}) meets edge {f} (vertex {f} to {(f + 1) % n})"
+    extent = float(np.ptp(p, axis=0).max())
+    area = 0.5 * float(np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]))
+    if abs(area) <= 1e-12 * extent * extent:  # simple yet no area: only in degenerate floating-point cases
+        return "has zero area"
+    return None
 
 
 class Box(Model):
@@ -57,7 +149,7 @@ class Lattice(Model):
     """
 
     center: Point
-    spacing_m: PositiveFloat
+    spacing_m: Annotated[float, Field(gt=0, le=MAX_COORDINATE_M)]
     kind: Literal["triangular", "square"] = "triangular"
     angle_deg: float = 0.0
 
@@ -90,6 +182,8 @@ class Group(BehaviorChoice):
     battery is below 1); physics fidelity only.
     """
 
+    model_config = MODEL_CONFIG
+
     name: str
     count: int = Field(ge=1)
     body: Literal["buoy", "ebot"]
@@ -107,7 +201,7 @@ class Event(Model):
 
     t_s: float = Field(ge=0)
     action: Literal["set-behavior", "remove"]
-    agents: list[int] | None = None
+    agents: list[Annotated[int, Field(ge=0)]] | None = None
     count: int | None = Field(default=None, ge=1)
     fraction: float | None = Field(default=None, gt=0, le=1)
     box: Box | None = None
@@ -127,8 +221,16 @@ class Room(Model):
     """A polygon (m); its edges are walls unless `walls` is false."""
 
     name: str = ""
-    polygon: list[Point] = Field(min_length=3)
+    polygon: list[Point] = Field(min_length=3, max_length=MAX_POLYGON_VERTICES)
     walls: bool = True
+
+    @field_validator("polygon")
+    @classmethod
+    def _simple(cls, polygon: list[Point]) -> list[Point]:
+        problem = polygon_problem(polygon)
+        if problem is not None:
+            raise ValueError(f"the polygon {problem}; a room must be a simple polygon with non-zero area")
+        return polygon
 
 
 class Light(Model):
@@ -150,6 +252,14 @@ class WorldSpec(Model):
     walls: list[tuple[Point, Point]] = []
     lights: list[Light] = []
     light_height_m: float = Field(default=0.3, ge=0)
+
+    @field_validator("walls")
+    @classmethod
+    def _walls_have_length(cls, walls: list[tuple[Point, Point]]) -> list[tuple[Point, Point]]:
+        for k, (start, end) in enumerate(walls):
+            if start == end:
+                raise ValueError(f"wall {k} starts and ends at the same point {start}")
+        return walls
 
 
 class NetworkSpec(Model):
@@ -284,7 +394,7 @@ class Scenario(Model):
     description: str = ""
     duration_s: PositiveFloat
     dt_s: PositiveFloat = 0.1
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, lt=2**64)
     log_period_s: PositiveFloat = 0.5
     fidelity: Literal["kinematic", "physics"] = "kinematic"
     origin: Origin = Origin()
@@ -298,6 +408,24 @@ class Scenario(Model):
     events: list[Event] = []
     metrics: MetricsSpec = MetricsSpec()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _finite(cls, data: Any) -> Any:
+        bad = non_finite_numbers(data, limit=1)
+        if bad:
+            raise ValueError(f"key {bad[0][0]!r} must be a finite number, got {bad[0][1]}")
+        return data
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, name: str) -> str:
+        if not SAFE_NAME.fullmatch(name):
+            raise ValueError(
+                "must be a single file name (it names the output directory runs/NAME): 1 to 100 letters, digits, "
+                "'.', '_', '+' or '-', starting with a letter or digit"
+            )
+        return name
+
     @model_validator(mode="after")
     def _references(self) -> Scenario:
         names = [g.name for g in self.groups]
@@ -308,9 +436,12 @@ class Scenario(Model):
         problem = self.network.security.reference_problem(names, sum(g.count for g in self.groups))
         if problem:
             raise ValueError(problem)
+        n = sum(g.count for g in self.groups)
         for k, event in enumerate(self.events):
             if event.group is not None and event.group not in names:
                 raise ValueError(f"events[{k}].group {event.group!r} is not a group ({names})")
+            if event.agents and max(event.agents) >= n:
+                raise ValueError(f"events.{k}.agents: agent {max(event.agents)} does not exist (agents 0..{n - 1})")
         return self
 
     @property
@@ -344,30 +475,53 @@ class Scenario(Model):
         if agents is not None:
             target = self.resize_group or self.groups[0].name
             others = sum(g.count for g in self.groups if g.name != target)
+            if agents < 1:
+                raise ScenarioError(f"--agents must be at least 1, got {agents}")
             if agents <= others:
-                raise ScenarioError(f"--agents {agents}: the other groups already hold {others} agents")
+                raise ScenarioError(
+                    f"--agents {agents}: the other groups already hold {others} agents and group {target!r}, "
+                    f"which --agents resizes, needs at least 1: give --agents {others + 1} or more"
+                )
             for group in data["groups"]:
                 if group["name"] == target:
                     group["count"] = agents - others
         return validate_scenario(data, "command-line overrides")
 
 
+MAX_REPORTED_ERRORS = 20
+
+
+def _shown(value: Any, limit: int = 80) -> str:
+    text = repr(value) if not isinstance(value, list | tuple) or len(value) < 50 else f"<{len(value)} items>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _describe(error: ValidationError, source: str) -> str:
     lines = [f"{source}: invalid scenario"]
-    for item in error.errors():
+    items = error.errors()
+    for item in items[:MAX_REPORTED_ERRORS]:
         key = ".".join(str(p) for p in item["loc"]) or "(top level)"
         got = item.get("input")
-        shown = "" if isinstance(got, dict) else f" (got {got!r})"
-        lines.append(f"  key '{key}': {item['msg']}{shown}")
+        shown = "" if isinstance(got, dict) else f" (got {_shown(got)})"
+        message = item["msg"].removeprefix("Value error, ")
+        lines.append(f"  key '{key}': {message}{shown}")
+    if len(items) > MAX_REPORTED_ERRORS:
+        lines.append(f"  ... and {len(items) - MAX_REPORTED_ERRORS} more")
     return "\n".join(lines)
 
 
 def validate_scenario(data: dict[str, Any], source: str) -> Scenario:
-    """A Scenario from a dict; ScenarioError names `source` and every bad key."""
+    """A Scenario from a dict; ScenarioError names `source` and every bad key (every nan or inf too)."""
+    bad = non_finite_numbers(data, limit=MAX_REPORTED_ERRORS)
+    if bad:
+        keys = "\n".join(f"  key '{key}': must be a finite number (got {value})" for key, value in bad)
+        raise ScenarioError(f"{source}: invalid scenario\n{keys}")
     try:
         return Scenario.model_validate(data)
     except ValidationError as error:
         raise ScenarioError(_describe(error, source)) from None
+    except RecursionError:
+        raise ScenarioError(f"{source}: invalid scenario: nested too deeply") from None
 
 
 PACKAGED = resources.files("sitl") / "scenarios"
@@ -384,22 +538,31 @@ def packaged_scenarios() -> dict[str, str]:
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A packaged scenario by name, or a TOML file by path."""
+    """A packaged scenario by name, or a TOML file by path (a regular file of at most 16 MiB)."""
     path = Path(name_or_path)
-    if path.suffix == ".toml" or path.is_file():
-        if not path.is_file():
-            raise ScenarioError(f"{path}: no such scenario file")
-        text, source = path.read_bytes(), str(path)
+    try:
+        is_file = path.is_file()
+    except (OSError, ValueError) as error:  # a name too long for the file system, a NUL byte
+        raise ScenarioError(f"{str(name_or_path)[:100]!r}: cannot be a scenario file ({error})") from None
+    if path.suffix == ".toml" or is_file:
+        source = str(path)
+        try:
+            text = read_small_file(path, MAX_SCENARIO_FILE_BYTES)
+        except FileNotFoundError:
+            raise ScenarioError(f"{path}: no such scenario file") from None
+        except UnreadableFileError as error:
+            raise ScenarioError(f"{path}: {error}") from None
     else:
-        entry = PACKAGED / f"{name_or_path}.toml"
-        if not entry.is_file():
-            known = ", ".join(packaged_scenarios())
-            raise ScenarioError(f"no scenario named {name_or_path!r}; packaged scenarios: {known}")
-        text, source = entry.read_bytes(), f"scenario {name_or_path!r}"
+        known = packaged_scenarios()
+        if str(name_or_path) not in known:
+            raise ScenarioError(f"no scenario named {name_or_path!r}; packaged scenarios: {', '.join(known)}")
+        text, source = (PACKAGED / f"{name_or_path}.toml").read_bytes(), f"scenario {name_or_path!r}"
     try:
         data = tomllib.loads(text.decode("utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
+    except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{source}: not valid TOML: {error}") from None
+    except Exception as error:  # UnicodeDecodeError, RecursionError (deep nesting), huge integers, MemoryError
+        raise ScenarioError(f"{source}: not valid TOML: {describe_parse_error(error)}") from None
     return validate_scenario(data, source)
 
 

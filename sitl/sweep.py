@@ -3,11 +3,16 @@
 Every run's scalar metrics go to sweep.csv (one row per run); the chosen
 metrics are plotted against the number of agents as mean and standard
 deviation over the seeds (sweep.png). Runs write no per-run outputs.
+
+Before the first run, every swarm size is validated, the whole sweep is
+checked against `sitl.budget`'s limits and the output directory is checked,
+so that a sweep does not fail after hours of running.
 """
 
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -17,18 +22,33 @@ import matplotlib.pyplot as plt
 import numpy as np
 from tqdm import tqdm
 
-from sitl.runner import simulate, write_atomically
-from sitl.scenario import Scenario
+from sitl.budget import check_sweep_size
+from sitl.runner import check_output_directory, simulate, write_atomically
+from sitl.scenario import Scenario, ScenarioError
 
 
 def run_sweep(
-    scenario: Scenario, agents: list[int], seeds: list[int], out: Path, plot_keys: list[str], progress: bool = True
+    scenario: Scenario,
+    agents: list[int],
+    seeds: Sequence[int],
+    out: Path,
+    plot_keys: list[str],
+    progress: bool = True,
+    force: bool = False,
 ) -> list[dict]:
-    """Run every (agents, seed) pair; write sweep.csv and sweep.png to `out` (all or nothing)."""
+    """Run every (agents, seed) pair; write sweep.csv and sweep.png to `out` (all or nothing).
+
+    ScenarioError (a bad size, no seeds, too large) or OutputDirectoryError before the first run.
+    """
+    if not agents or not seeds:
+        raise ScenarioError(f"sweep of {scenario.name!r}: give at least one swarm size and one run")
+    sized = {n: scenario.with_overrides(agents=n) for n in dict.fromkeys(agents)}
+    check_sweep_size([sized[n] for n in agents], len(seeds), f"sweep of {scenario.name!r}", force=force)
+    check_output_directory(out, "sweep.csv")
     rows: list[dict] = []
     pairs = [(n, s) for n in agents for s in seeds]
     for n, seed in tqdm(pairs, desc=f"sweep {scenario.name}", disable=not progress):
-        metrics = simulate(scenario.with_overrides(agents=n, seed=seed)).metrics
+        metrics = simulate(sized[n].with_overrides(seed=seed), force=force).metrics
         row = {"agents": n, "seed": seed, "passed": metrics["passed"]}
         row.update({k: v for k, v in metrics.items() if isinstance(v, int | float) and not isinstance(v, bool)})
         rows.append(row)
@@ -41,7 +61,7 @@ def run_sweep(
             writer.writerows(rows)
         _plot(rows, agents, plot_keys, scenario.name, staging / "sweep.png")
 
-    write_atomically(out, write)
+    write_atomically(out, write, marker="sweep.csv")
     return rows
 
 
