@@ -16,6 +16,10 @@ Facts from ArduPilot's source behind each choice:
   the throttle is negative (Rover/mode.cpp `get_pilot_input`); 1 (two paddles)
   reads the channels as paddles.
 - Top speed: SPEED_MAX, or when 0 CRUISE_SPEED / CRUISE_THROTTLE % (Rover/Parameters.cpp).
+- Turning radius: TURN_RADIUS, m (Rover/Parameters.cpp, 0.9 m by default), what a motorboat's controller plans with.
+- Frames and kinds: a buoy (thrust in any direction: throttle + lateral) needs an omni frame; a motorboat
+  (steering + throttle) drives any frame, omni ones included (they take steering and throttle too); an eBot is
+  driven as a skid-steer rover (docs/ardupilot.md, "Frames: omni, motorboat, skid-steer").
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from firmware_bridge.autopilot_requests import (
 from firmware_bridge.commands import ROVER_MODES, Encoder, rc_override
 from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap
 
-BUOY, EBOT = "buoy", "ebot"
+BUOY, EBOT, MOTORBOAT = "buoy", "ebot", "motorboat"
 OMNI_FRAME_TYPES = {1: "omni3", 2: "omniX", 3: "omniPlus", 4: "omni3mecanum"}
 FRAME_CLASSES = {0: "undefined", 1: "rover", 2: "boat", 3: "balancebot"}
 FORCE_ARM_MAGIC = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2 that skips the checks (GCS_Common.cpp)
@@ -61,6 +65,7 @@ CORE_PARAMS = (
     "SPEED_MAX",
     "MOT_VEC_ANGLEMAX",
     "WENC_TYPE",
+    "TURN_RADIUS",
 )
 RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
 
@@ -69,6 +74,15 @@ RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
 # at 50 Hz), so nothing here is asked faster than 25 Hz.
 STREAMS_HZ = {
     BUOY: {
+        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
+        mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
+        mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
+        mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
+        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
+        mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
+    },
+    # A motorboat is estimated as a buoy is (GPS, compass, IMU): the same messages.
+    MOTORBOAT: {
         mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
         mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
         mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
@@ -161,6 +175,12 @@ class AutopilotProfile:
         return float(cruise) * 100.0 / float(throttle)
 
     @property
+    def turn_radius_m(self) -> float | None:
+        """TURN_RADIUS, m: the turning radius the autopilot is configured with (None when not read or not > 0)."""
+        value = self.values.get("TURN_RADIUS")
+        return float(value) if value is not None and math.isfinite(value) and value > 0 else None
+
+    @property
     def rc_map(self) -> RcMap:
         steering = _int(self.values, "RCMAP_ROLL", 1)
         throttle = _int(self.values, "RCMAP_THROTTLE", 3)
@@ -188,8 +208,9 @@ class AutopilotProfile:
         if kind == BUOY and self.known and not self.lateral_capable:
             found.append(
                 f"a buoy needs thrust in any direction, but this autopilot is {self.frame_name}: it cannot move "
-                "sideways and the lateral channel would be ignored. Run it with a steering kind (motorboat, issue "
-                "#9), or set FRAME_TYPE to the omni frame the vessel really has"
+                "sideways and the lateral channel would be ignored. Run it as a motorboat (--kind motorboat: "
+                "steering + throttle, it turns towards where it goes), or set FRAME_TYPE to the omni frame the "
+                "vessel really has"
             )
         timeout = self.override_timeout_s
         if timeout == 0:
@@ -245,8 +266,8 @@ class RateMeter:
 class AutopilotSession:
     """The autonomy's conversation with one ArduPilot autopilot (system `target_system`, component 1).
 
-    kind: BUOY or EBOT (what the estimators need and how commands map). encoder: our source ids (its system
-    id is made the autopilot's MAV_GCS_SYSID once that is known, so that overrides are taken). clock: seconds.
+    kind: BUOY, MOTORBOAT or EBOT (what the estimators need and how commands map). encoder: our source ids (its
+    system id is made the autopilot's MAV_GCS_SYSID once that is known, so that overrides are taken). clock: s.
     """
 
     def __init__(

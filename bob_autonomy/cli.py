@@ -82,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--vehicle", help="vehicle connection: udpout:H:P, udpin:H:P, tcp:H:P or a device (required)")
     run.add_argument("--baud", type=int, default=115200, help="serial baud rate")
     run.add_argument("--system-id", type=int, help="the vehicle's MAVLink system id, agent = id - 1 (required)")
-    run.add_argument("--kind", choices=["buoy", "ebot"], default="buoy")
+    run.add_argument("--kind", choices=["buoy", "motorboat", "ebot"], default="buoy")
     run.add_argument("--mesh", help="swarm mesh link, e.g. udpout:127.0.0.1:15000 (none: the agent acts alone)")
     behavior = run.add_mutually_exclusive_group()
     behavior.add_argument("--behavior", help="behaviour name (see `bob-autonomy behaviors`; one of the two required)")

@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from behaviors.base import Senses
 from bob_autonomy.agent import Agent
-from bob_autonomy.autopilot import AutopilotSession
+from bob_autonomy.autopilot import MOTORBOAT, AutopilotSession
 from bob_autonomy.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.clock import ScaledWallClock
@@ -37,8 +37,9 @@ from bob_autonomy.gcs import GcsComponent, load_signing_key
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import LinkMesh
+from bob_autonomy.motorboat_control import MotorboatModel
 from bob_autonomy.params import ParameterStore
-from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
 from bob_autonomy.senses import EbotSenses
 from bob_autonomy.supervisor import Supervisor, behavior_params
 from bob_autonomy.vehicle_link import BUOY, EBOT, VehicleLink
@@ -234,8 +235,11 @@ class Vessel:
                 dt_s=c.dt_s,
                 frame=LocalFrame(*c.origin),
             )
+        elif c.kind == MOTORBOAT:
+            self.max_actuator = 1.0  # (throttle, steering), each in [-1, 1]
+            self.pipeline = self._motorboat_pipeline(MotorboatModel.for_top_speed(c.top_speed_mps or 2.0))
         else:
-            raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy or ebot")
+            raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy, motorboat or ebot")
         self.frame = LocalFrame(*c.origin)
         fresh = c.params_file is None or not Path(c.params_file).exists()
         self.params = ParameterStore(c.params_file)
@@ -251,8 +255,9 @@ class Vessel:
         self.supervisor = Supervisor(self.params, c.behavior, self.frame)
         self.tlog = TlogWriter(c.tlog) if c.tlog else None
         self.vehicle_link: Link = open_link(c.vehicle, c.baud)
+        telemetry_kind = BUOY if c.kind == MOTORBOAT else c.kind  # a motorboat's telemetry is a buoy's
         self.vehicle = VehicleLink(
-            c.system_id, c.kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
+            c.system_id, telemetry_kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
         )
         self.autopilot = AutopilotSession(
             c.system_id, c.kind, self.vehicle.encoder, self.clock.now, estimator=c.estimator
@@ -294,6 +299,13 @@ class Vessel:
             model=model,
             on_ground=on_ground,
         )
+
+    def _motorboat_pipeline(self, model: MotorboatModel) -> MotorboatPipeline:
+        c = self.config
+        return MotorboatPipeline(
+            1, LocalFrame(*c.origin), model, c.max_thrust_fraction, estimator=c.estimator, controller=c.controller,
+            dt_s=c.dt_s,
+        )  # fmt: skip
 
     # -- link ------------------------------------------------------------------------------------------
 
@@ -445,6 +457,14 @@ class Vessel:
             logger.info(
                 "vessel model: top speed %s m/s at full throttle, %s", top, "on the ground" if on_ground else "afloat"
             )
+        if c.kind == MOTORBOAT and (c.top_speed_mps is None or profile.turn_radius_m is not None):
+            # The autopilot says how fast full throttle goes (SPEED_MAX or CRUISE_*) and how tight it turns
+            # (TURN_RADIUS): the MPC plans with that boat.
+            top = min(max(c.top_speed_mps or speed or 2.0, 0.1), 50.0)  # what MotorboatModel takes
+            model = MotorboatModel.for_top_speed(top, profile.turn_radius_m)
+            self.pipeline = self.body.pipeline = self._motorboat_pipeline(model)
+            radius = model.turning_radius_m
+            logger.info("motorboat model: %.2f m/s at full throttle, turning radius %.2f m", top, radius)
         if c.kind == BUOY and profile.lateral_capable:
             self._hold_heading = True
         logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)
@@ -538,9 +558,12 @@ class Vessel:
         self._stop.set()
 
     def _override(self, actuator: np.ndarray, *, hold_heading: bool = False) -> bytes:
-        """RC overrides for a buoy's body-frame thrust (x forward, y left; N) or an eBot's wheel speeds (left,
-        right; m/s), through the autopilot's RC map and calibration (`AutopilotSession.override`)."""
+        """RC overrides for a buoy's body-frame thrust (x forward, y left; N), a motorboat's (throttle, steering)
+        or an eBot's wheel speeds (left, right; m/s), through the autopilot's RC map and calibration
+        (`AutopilotSession.override`)."""
         a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2)) / self.max_actuator
+        if self.config.kind == MOTORBOAT:
+            return self.autopilot.override(a[1], a[0], None)
         if self.config.kind == BUOY:
             steering = self._heading_hold_steering() if hold_heading else 0.0
             return self.autopilot.override(steering, a[0], -a[1])
