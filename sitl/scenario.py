@@ -180,15 +180,38 @@ class Group(BehaviorChoice):
 
     thrust_fraction: the buoys' maximum thrust as a fraction of nominal (a weak
     battery is below 1); physics fidelity only.
+    top_speed_mps, turning_radius_m, steering: motorboats only (sitl.motorboat):
+    speed at full throttle (m/s, default 2), turning radius at full steering
+    (m, default 3) and "outboard" (default) or "rudder".
     """
 
     model_config = MODEL_CONFIG
 
     name: str
     count: int = Field(ge=1)
-    body: Literal["buoy", "ebot"]
+    body: Literal["buoy", "ebot", "motorboat"]
     start: Start
     thrust_fraction: float = Field(default=1.0, gt=0, le=1)
+    top_speed_mps: float | None = Field(default=None, gt=0, le=30)
+    turning_radius_m: float | None = Field(default=None, gt=0, le=500)
+    steering: Literal["outboard", "rudder"] | None = None
+
+    @model_validator(mode="after")
+    def _motorboat_keys(self) -> Group:
+        given = [k for k in ("top_speed_mps", "turning_radius_m", "steering") if getattr(self, k) is not None]
+        if given and self.body != "motorboat":
+            raise ValueError(f"{', '.join(given)}: only for body = \"motorboat\" (this group is {self.body!r})")
+        if self.body == "motorboat":
+            self.motorboat_params()  # a boat that cannot be built (e.g. a turn harder than a hull can pull) is refused
+        return self
+
+    def motorboat_params(self):  # -> sitl.motorboat.MotorboatParams
+        """The group's motorboat parameters (defaults where not given)."""
+        from sitl.motorboat import MotorboatParams, params_for
+
+        d = MotorboatParams()
+        speed, radius = self.top_speed_mps or d.top_speed_mps, self.turning_radius_m or d.turning_radius_m
+        return params_for(speed, radius, self.steering or d.steering)
 
 
 class Event(Model):
