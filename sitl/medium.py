@@ -294,6 +294,7 @@ class BroadcastMedium:
             code = np.where(code == 0, self._plausibility_code[verdict], code)
         superseded = self._same_round_duplicates(code, pairs, rows, sender)
         sec.count(code, claimed)
+        sec.intruder_refused += int(np.count_nonzero(code[sender >= self.n] > 0))
         keep = code == 0
         keep[superseded] = False
         return keep

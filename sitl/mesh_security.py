@@ -54,6 +54,7 @@ __all__ = [
     "MediumSecurity",
     "MeshSecuritySpec",
     "PlausibilitySpec",
+    "add_mesh_criteria",
     "medium_security",
 ]
 
@@ -181,6 +182,7 @@ class MediumSecurity:
         self.rejected = np.zeros((len(REJECT_REASONS), self.n_ids), dtype=np.int64)
         self.intruder_sent = 0
         self.intruder_delivered = 0
+        self.intruder_refused = 0
         self.packet_bytes = 0  # largest packet really encoded (keyed runs)
 
     @property
@@ -243,10 +245,26 @@ class MediumSecurity:
             "rejected_total": int(self.rejected.sum()),
         }
         if self.m:
-            out.update(intruder_sent=self.intruder_sent, intruder_delivered=self.intruder_delivered)
+            out.update(
+                intruder_sent=self.intruder_sent,
+                intruder_delivered=self.intruder_delivered,
+                intruder_refused=self.intruder_refused,
+            )
         if self.packet_bytes:
             out["packet_bytes"] = self.packet_bytes
         return out
+
+
+def add_mesh_criteria(metrics: dict) -> dict:
+    """With intruders on the air (`metrics["network"]["mesh"]` has their counters): the criterion
+    `intruder_packets_refused` (members heard at least one intruder packet, and refused every one they
+    heard), and `passed` updated. Returns `metrics`."""
+    mesh = metrics.get("network", {}).get("mesh", {})
+    if "intruder_delivered" in mesh and "criteria" in metrics:
+        heard = mesh["intruder_delivered"]
+        metrics["criteria"]["intruder_packets_refused"] = heard > 0 and mesh["intruder_refused"] == heard
+        metrics["passed"] = bool(all(metrics["criteria"].values()))
+    return metrics
 
 
 def code_of(reason: str) -> int:
