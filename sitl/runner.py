@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 from sitl.budget import check_run_size
 from sitl.fleet import LockstepFleet
+from sitl.mesh_security import add_mesh_criteria
 from sitl.metrics import METRICS
 from sitl.plots import write_figures
 from sitl.recorder import Frame, Recorder
@@ -75,6 +76,7 @@ def simulate(scenario: Scenario, progress: bool = False, force: bool = False) ->
         metrics["vehicle_link"] = fleet.bodies.link_counters()
     medium = fleet.medium
     metrics["network"] = medium.counters()  # sent, delivered, dropped, packet_bytes, mesh rejections
+    add_mesh_criteria(metrics)  # with intruders on the air: every packet of theirs refused
     return RunResult(fleet, recorder, metrics)
 
 
