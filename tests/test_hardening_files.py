@@ -235,13 +235,11 @@ def _run_command(vehicle_port: int, params: Path, log: Path) -> subprocess.Compl
 
 
 @pytest.mark.xdist_group("realtime")
-@pytest.mark.parametrize("kind", ["nested 100,000 deep", "directory", "binary junk"])
-def test_bob_autonomy_run_starts_with_a_corrupt_parameter_file_and_restarts_cleanly(tmp_path: Path, kind) -> None:
+def test_bob_autonomy_run_starts_with_a_deeply_nested_parameter_file_and_restarts_cleanly(tmp_path: Path) -> None:
+    """The issue's report, end to end (about 12 s: two starts with the autopilot handshake); the other
+    corrupt files go through the same ParameterStore.load, tested above."""
     params = tmp_path / "params.json"
-    if kind == "directory":
-        params.mkdir()
-    else:
-        params.write_bytes(CORRUPT_PARAMETER_FILES[kind][0])
+    params.write_bytes(deep_list())
     (tmp_path / ".params.json.k1ll3d00.tmp").write_text("{}")  # left by a killed write
     vehicle = StandInVehicle()
     vehicle.start()
