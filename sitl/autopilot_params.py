@@ -53,8 +53,8 @@ KIND_FRAMES = {
     # The eBot: a skid-steer rover (throttle left / right on SERVO1 / SERVO3), two wheel encoders.
     "ebot": {"FRAME_CLASS": FRAME_ROVER, "FRAME_TYPE": FRAME_TYPE_UNDEFINED, "SERVO1_FUNCTION": SERVO_THROTTLE_LEFT,
              "SERVO3_FUNCTION": SERVO_THROTTLE_RIGHT, "WENC_TYPE": 10, "WENC2_TYPE": 10},
-    # A motorboat: steering + throttle, no lateral (Rover/Parameters.cpp set_default_function CH_1, CH_3). Its
-    # dynamics are not built yet (#9); the parameters are here so a kind can be added without a new table.
+    # A motorboat: steering + throttle, no lateral (Rover/Parameters.cpp set_default_function CH_1, CH_3;
+    # Tools/autotest/default_params/motorboat.parm: FRAME_CLASS 2); dynamics in sitl/motorboat.py.
     "motorboat": {"FRAME_CLASS": FRAME_BOAT, "FRAME_TYPE": FRAME_TYPE_UNDEFINED,
                   "SERVO1_FUNCTION": SERVO_GROUND_STEERING, "SERVO3_FUNCTION": SERVO_THROTTLE},
 }  # fmt: skip
@@ -128,6 +128,10 @@ def rover_parameter_table(kind: str, system_id: int, gcs_system_id: int = 255) -
         ParamSpec("MOT_SLEWRATE", 100, INT16, 0, 1000, "libraries/AR_Motors/AP_MotorsUGV.cpp"),
         ParamSpec("WENC_TYPE", 0, INT8, 0, 10, "libraries/AP_WheelEncoder/AP_WheelEncoder.cpp"),
         ParamSpec("WENC2_TYPE", 0, INT8, 0, 10, "libraries/AP_WheelEncoder/AP_WheelEncoder.cpp"),
+        # What a motorboat's controller plans with: top speed (0: from CRUISE_SPEED / CRUISE_THROTTLE) and the
+        # turning radius (Rover/Parameters.cpp ParametersG2 speed_max, turn_radius).
+        ParamSpec("SPEED_MAX", 0.0, REAL32, 0, 30, rover),
+        ParamSpec("TURN_RADIUS", 0.9, REAL32, 0, 10, rover),
     ]
     servo = "Rover/Parameters.cpp (set_default_function), libraries/SRV_Channel/SRV_Channel_aux.cpp"
     specs += [ParamSpec(f"SERVO{i}_FUNCTION", {1: 26, 3: 70}.get(i, 0), INT16, -1, 200, servo) for i in range(1, 5)]

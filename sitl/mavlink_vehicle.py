@@ -55,8 +55,8 @@ from sitl.autopilot_rc import (
 from sitl.autopilot_streams import PRODUCED, SCHEDULABLE, StreamSchedule
 
 m = mavlink
-BUOY, EBOT = "buoy", "ebot"
-KINDS = (BUOY, EBOT)
+BUOY, EBOT, MOTORBOAT = "buoy", "ebot", "motorboat"
+KINDS = (BUOY, EBOT, MOTORBOAT)
 DRIVING_MODES = safety.PILOT_MODES
 SUPPORTED_MODES = safety.SIMULATED_MODES
 HOUSEKEEPING_PERIOD_S = 1.0  # HEARTBEAT and SYS_STATUS in "sensor-rate" streams
@@ -100,7 +100,9 @@ def _finite(*values: float) -> bool:
 class SimulatedVehicle:
     """The autopilot of one simulated buoy or eBot (see the module docstring).
 
-    kind: "buoy" (command = body-frame thrust x forward, y left, N) or "ebot" (wheel speeds left, right, m/s).
+    kind: "buoy" (command = body-frame thrust x forward, y left, N), "ebot" (wheel speeds left, right, m/s) or
+    "motorboat" (throttle and steering outputs, each in [-1, 1]; FRAME_TYPE 0 with SERVO1 ground steering, SERVO3
+    throttle).
     max_actuator: the full-scale actuator value, N of thrust or m/s of wheel speed (full RC deflection).
     failsafe_s: RC_OVERRIDE_TIME when given (ArduPilot's default 3 s otherwise). armed: armed at boot, without
     checks. mode: INITIAL_MODE when given. streams: "ardupilot" or "sensor-rate" (module docstring).
@@ -123,7 +125,7 @@ class SimulatedVehicle:
         params: dict[str, float] | None = None,
     ) -> None:
         if kind not in KINDS:
-            raise ValueError(f"unknown vehicle kind {kind!r}; choose buoy or ebot")
+            raise ValueError(f"unknown vehicle kind {kind!r}; choose one of {', '.join(KINDS)}")
         if failsafe_s is not None and not failsafe_s > 0:
             raise ValueError(f"failsafe_s must be positive, got {failsafe_s!r}")
         if streams not in STREAM_MODES:
@@ -354,7 +356,10 @@ class SimulatedVehicle:
         return steering, throttle, lateral
 
     def _demand(self, out: PilotOutput) -> np.ndarray:
-        """The actuator vector (N thrust x, y body; or m/s wheels left, right) for motor demands `out`."""
+        """The actuator vector (N thrust x, y body; m/s wheels left, right; or a motorboat's throttle and ground
+        steering outputs, each in [-1, 1], steering > 0 to starboard) for motor demands `out`."""
+        if self.kind == MOTORBOAT:
+            return np.array([out.throttle, out.steering])
         if self.kind == BUOY:
             return np.array([out.throttle * self.max_actuator, -out.lateral * self.max_actuator])
         left, right = skid_outputs(out)
@@ -743,4 +748,4 @@ class SimulatedVehicle:
 # The sensor readings' way into the vehicles (re-exported: callers import them from here).
 from sitl.vehicle_telemetry import encode_readings, encode_senses  # noqa: E402
 
-__all__ = ["BUOY", "EBOT", "SimulatedVehicle", "VehicleCounters", "encode_readings", "encode_senses"]
+__all__ = ["BUOY", "EBOT", "MOTORBOAT", "SimulatedVehicle", "VehicleCounters", "encode_readings", "encode_senses"]
