@@ -391,6 +391,19 @@ class AutopilotSession:
                 rates[stream] = max(rates.get(stream, 0.0), hz)
         return [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
 
+    def lagging_stream_requests(self, now_s: float, window_s: float) -> list[bytes]:
+        """REQUEST_DATA_STREAM for the groups of requested messages that are as good as absent over the last
+        `window_s` (under a quarter of the asked rate and under 2 Hz: their SET_MESSAGE_INTERVAL was refused or
+        ignored, not merely limited by a slower sensor); each group asked at the highest rate wanted of it."""
+        rates: dict[int, float] = {}
+        for message, (hz, _) in self.streams.items():
+            q = self.rates.arrivals.get(message, ())
+            got = sum(1 for t in q if t > now_s - window_s) / window_s
+            stream = STREAM_OF_MESSAGE.get(message)
+            if got < min(0.25 * hz, 2.0) and stream is not None:
+                rates[stream] = max(rates.get(stream, 0.0), hz)
+        return [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
+
     def info_requests(self) -> list[bytes]:
         return [
             request_message(self.encoder, self.target_system, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION),

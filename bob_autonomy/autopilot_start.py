@@ -126,6 +126,11 @@ class AutopilotStarter:
             return None
         self._neutral = True
         self._wait(o.neutral_lead_s)
+        lagging = s.lagging_stream_requests(s.clock(), o.neutral_lead_s)
+        if lagging:
+            logger.info("%d stream group(s) asked again with REQUEST_DATA_STREAM (messages still slow)", len(lagging))
+            for frame in lagging:
+                self.send(frame)
         self._set_mode(o.mode)
         self._wait_ready()
         self._arm()

@@ -18,8 +18,10 @@ from firmware_bridge.commands import Encoder
 
 AUTOPILOT_COMPONENT = mavlink.MAV_COMP_ID_AUTOPILOT1
 
-# REQUEST_DATA_STREAM's groups holding each message (ArduPilot's stream map, libraries/GCS_MAVLink/GCS_Common.cpp
-# and the vehicle's GCS_Mavlink.cpp): the fallback for firmware without SET_MESSAGE_INTERVAL.
+# REQUEST_DATA_STREAM's groups holding each message (ArduPilot's stream map,
+# libraries/GCS_MAVLink/GCS_MAVLink_Parameters.cpp STREAM_*_msgs): the fallback for firmware without
+# SET_MESSAGE_INTERVAL, and for messages it will not schedule by id (WHEEL_DISTANCE has no interval of its own).
+# SCALED_IMU is in no group: RAW_SENSORS brings RAW_IMU instead, which the decoder reads the same way.
 STREAM_OF_MESSAGE = {
     mavlink.MAVLINK_MSG_ID_RAW_IMU: mavlink.MAV_DATA_STREAM_RAW_SENSORS,
     mavlink.MAVLINK_MSG_ID_SCALED_IMU: mavlink.MAV_DATA_STREAM_RAW_SENSORS,
@@ -29,7 +31,7 @@ STREAM_OF_MESSAGE = {
     mavlink.MAVLINK_MSG_ID_ATTITUDE: mavlink.MAV_DATA_STREAM_EXTRA1,
     mavlink.MAVLINK_MSG_ID_RC_CHANNELS: mavlink.MAV_DATA_STREAM_RC_CHANNELS,
     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: mavlink.MAV_DATA_STREAM_RC_CHANNELS,
-    mavlink.MAVLINK_MSG_ID_WHEEL_DISTANCE: mavlink.MAV_DATA_STREAM_EXTRA3,
+    mavlink.MAVLINK_MSG_ID_WHEEL_DISTANCE: mavlink.MAV_DATA_STREAM_EXTRA1,
     mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: mavlink.MAV_DATA_STREAM_EXTRA3,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: mavlink.MAV_DATA_STREAM_EXTRA3,
 }

@@ -304,3 +304,20 @@ def test_an_ebot_pipeline_with_a_frame_fuses_gps_fixes() -> None:
         fix = GpsFix(np.array([0]), np.array([0.2 * k]), np.array([lat]), np.array([lon]))
         pipeline.feed([fix])
     np.testing.assert_allclose(pipeline.estimate(8.0).position[0], [30.0, -20.0], atol=1.0)
+
+
+@pytest.mark.parametrize(("wheel_every", "asked_again"), [(20, True), (1, False)])
+def test_messages_the_autopilot_will_not_schedule_are_asked_by_their_stream_group(wheel_every, asked_again) -> None:
+    now = [0.0]
+    s = AutopilotSession(1, EBOT, Encoder(), clock=lambda: now[0])
+    s.stream_requests()
+    autopilot = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    for k in range(40):  # 2 s of ATTITUDE at the compass's 10 Hz, WHEEL_DISTANCE at 1 Hz (Rover's default) or 20 Hz
+        now[0] = k * 0.05
+        if k % 2 == 0:
+            s.handle(_parse(autopilot.attitude_encode(0, 0, 0, 0.1, 0, 0, 0).pack(autopilot))[0])
+        if k % wheel_every == 0:
+            s.handle(_parse(autopilot.wheel_distance_encode(0, 2, [0.0] * 16).pack(autopilot))[0])
+    asked = {m.req_stream_id: m.req_message_rate for m in _parse(b"".join(s.lagging_stream_requests(now[0], 2.0)))}
+    # WHEEL_DISTANCE is in ArduPilot's EXTRA1 group with ATTITUDE; ATTITUDE limited by its sensor alone is not slow
+    assert (asked.get(mavlink.MAV_DATA_STREAM_EXTRA1) == 20) is asked_again
