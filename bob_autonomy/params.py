@@ -18,7 +18,9 @@ problem is logged (and kept in `load_problem` for the ground station), the file 
 The same holds for a file that cannot be read at all: not UTF-8, nested too deeply for the parser
 (RecursionError), larger than `MAX_FILE_BYTES` (1 MiB; a full file with 500 goals and 100 fence vertices
 is about 40 kB), a directory, FIFO or device in its place, or an OSError such as a permission error. So a
-service restart never meets the same bad file twice. Loading never raises.
+service restart never meets the same bad file twice. Loading never raises. (A directory is moved aside only
+when empty, as a container runtime creates for a missing bind-mounted file; one with files in it is a wrong
+path, reported at every start and left alone.)
 Unknown parameter names in a file (e.g. written by a newer version) only give a warning.
 
 At start (construction with a path), temporary files `.<name>.XXXXXXXX.tmp` that an interrupted atomic
@@ -221,7 +223,7 @@ class ParameterStore:
 
     def __init__(self, path: str | os.PathLike[str] | None = None, *, specs: Sequence[ParamSpec] = PARAMS) -> None:
         self.path = Path(path) if path is not None else None
-        if self.path is not None and self.path.name in ("", ".", ".."):
+        if self.path is not None and (self.path.name in ("", ".", "..") or str(path).endswith(("/", os.sep))):
             raise ParamError(f"parameter file {str(path)!r}: give a file name, not a directory")
         self._specs = {s.name: s for s in specs}
         self._order = [s.name for s in specs]
@@ -446,14 +448,19 @@ class ParameterStore:
         return values, goals, fence
 
     def _corrupt(self, problem: str) -> None:
-        """Report the file, rename it aside (whatever it is: file, directory, FIFO) and keep the defaults."""
+        """Report the file, rename it aside (a file, FIFO or empty directory) and keep the defaults.
+
+        A directory with something in it is left where it is: it is a wrong --params-file (say /etc),
+        not a damaged parameter file, and moving it could break more than this process."""
         assert self.path is not None
         aside = _aside_name(self.path)
         try:
+            if self.path.is_dir() and not self.path.is_symlink() and any(self.path.iterdir()):
+                raise IsADirectoryError(0, "a directory with files in it is not moved; give --params-file a file name")
             os.replace(self.path, aside)
             where = f"; moved to {aside}"
         except OSError as exc:
-            where = f"; could not move it aside ({exc.strerror or exc}): fix or remove it by hand"
+            where = f"; not moved aside ({exc.strerror or exc})"
         self.load_problem = f"parameter file {self.path} is corrupt ({problem}){where}; using defaults"
         logger.warning("%s", self.load_problem)
 

@@ -89,16 +89,34 @@ def test_a_corrupt_parameter_file_is_set_aside_and_the_next_start_is_clean(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["params.json", "params.json.corrupt-1"]
 
 
-def test_a_directory_in_place_of_the_parameter_file_is_set_aside(tmp_path: Path) -> None:
+def test_an_empty_directory_in_place_of_the_parameter_file_is_set_aside(tmp_path: Path) -> None:
     path = tmp_path / "params.json"
-    path.mkdir()
-    (path / "inside").write_text("kept")
+    path.mkdir()  # what a container runtime creates for a bind mount of a missing file
     store = ParameterStore(path)
     assert store.values() == DEFAULTS
     assert "not a regular file but a directory" in store.load_problem
-    assert (tmp_path / "params.json.corrupt-1" / "inside").read_text() == "kept"
+    assert (tmp_path / "params.json.corrupt-1").is_dir()
     store.set("BOB_H", 1)
     assert ParameterStore(path).get("BOB_H") == 1
+
+
+def test_a_directory_with_files_is_reported_but_never_moved(tmp_path: Path) -> None:
+    path = tmp_path / "etc"
+    path.mkdir()
+    (path / "passwd").write_text("kept")
+    for _ in range(2):  # every start: defaults and the same clear message; nothing moved, nothing raised
+        store = ParameterStore(path)
+        assert store.values() == DEFAULTS
+        assert "a directory with files in it is not moved" in store.load_problem
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["etc"]
+    store.set("BOB_H", 1)  # cannot be written there: kept in memory, said why
+    assert store.get("BOB_H") == 1 and store.persist_error is not None
+    assert (path / "passwd").read_text() == "kept"
+
+
+def test_a_path_ending_in_a_slash_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="give a file name"):
+        ParameterStore(f"{tmp_path}/")
 
 
 def test_a_fifo_in_place_of_the_parameter_file_does_not_hang_the_start(tmp_path: Path) -> None:
