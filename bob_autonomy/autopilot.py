@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.autopilot_requests import (
+    NO_INTERVAL,
     STREAM_OF_MESSAGE,
     param_request_read,
     request_data_stream,
@@ -378,9 +379,22 @@ class AutopilotSession:
     # -- requests --------------------------------------------------------------------------------------
 
     def stream_requests(self) -> list[bytes]:
-        """SET_MESSAGE_INTERVAL for every message the estimators and the watch need."""
+        """SET_MESSAGE_INTERVAL for every message the estimators and the watch need (REQUEST_DATA_STREAM of its
+        group for a message ArduPilot cannot schedule by id)."""
         self._streams_requested_at = float(self.clock())
-        return [set_message_interval(self.encoder, self.target_system, m, hz) for m, (hz, _) in self.streams.items()]
+        frames = []
+        for message, (hz, _) in self.streams.items():
+            if message in NO_INTERVAL:
+                stream = STREAM_OF_MESSAGE[message]
+                frames.append(request_data_stream(self.encoder, self.target_system, stream, math.ceil(hz)))
+            else:
+                frames.append(set_message_interval(self.encoder, self.target_system, message, hz))
+        return frames
+
+    @property
+    def interval_requests(self) -> int:
+        """How many of `stream_requests` are SET_MESSAGE_INTERVAL (each answered by a COMMAND_ACK)."""
+        return sum(1 for m in self.streams if m not in NO_INTERVAL)
 
     def stream_fallback_requests(self) -> list[bytes]:
         """REQUEST_DATA_STREAM for the groups holding those messages (firmware without SET_MESSAGE_INTERVAL)."""

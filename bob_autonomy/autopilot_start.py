@@ -143,13 +143,13 @@ class AutopilotStarter:
         for frame in s.stream_requests() + s.info_requests():
             self.send(frame)
         command = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
-        self._wait(1.5, lambda: len(s.acks_since(command, t0)) >= len(s.streams))
+        self._wait(1.5, lambda: len(s.acks_since(command, t0)) >= s.interval_requests)
         results = s.acks_since(command, t0)
         refused = [r for r in results if r != mavlink.MAV_RESULT_ACCEPTED]
         if results and refused:
             self._say(
                 mavlink.MAV_SEVERITY_WARNING,
-                f"autopilot refused {len(refused)} of {len(s.streams)} message-rate requests "
+                f"autopilot refused {len(refused)} of {s.interval_requests} message-rate requests "
                 f"({RESULT_WORDS.get(refused[0], refused[0])}; faster than its loop allows?)",
             )
         if not results or mavlink.MAV_RESULT_ACCEPTED not in results:

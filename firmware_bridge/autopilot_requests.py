@@ -37,6 +37,11 @@ STREAM_OF_MESSAGE = {
 }
 
 
+# Messages ArduPilot has no ap_message id for, so SET_MESSAGE_INTERVAL is denied ("No ap_message for mavlink id",
+# libraries/GCS_MAVLink/GCS_Common.cpp `mavlink_id_to_ap_message_id`): only their stream group schedules them.
+NO_INTERVAL = {mavlink.MAVLINK_MSG_ID_WHEEL_DISTANCE}
+
+
 def _command_long(encoder: Encoder, target_system: int, command: int, *params: float) -> bytes:
     values = [float(p) for p in params] + [0.0] * (7 - len(params))
     if not all(math.isfinite(v) for v in values):

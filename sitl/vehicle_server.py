@@ -12,12 +12,11 @@ Each vehicle is a `sitl.mavlink_vehicle.SimulatedVehicle`: an ArduPilot Rover
 as the autonomy and ground stations see it (streams, parameters, missions,
 arming, modes, failsafes; docs/simulated-autopilot.md). Its telemetry is
 encoded from the sensor readings of `sitl.vehicle_physics.VehiclePhysics`.
-With `streams="sensor-rate"` (the default until bob-autonomy asks for its
-streams): HEARTBEAT and SYS_STATUS at 1 Hz (simulated time), GPS_RAW_INT,
-ATTITUDE, SCALED_IMU and WHEEL_DISTANCE as the sensors deliver, and
-GLOBAL_POSITION_INT with every GPS fix (what a ground station such as MAVProxy
-shows as the vehicle's position); with `streams="ardupilot"`, Rover's 1 Hz
-stream defaults until asked. Replies go to the sender; telemetry and the
+With `streams="ardupilot"` (the default) each vehicle streams at Rover's 1 Hz
+defaults until asked, as a real autopilot does (bob-autonomy asks at start);
+with `streams="sensor-rate"`: HEARTBEAT and SYS_STATUS at 1 Hz (simulated time),
+GPS_RAW_INT, ATTITUDE, SCALED_IMU and WHEEL_DISTANCE as the sensors deliver,
+and GLOBAL_POSITION_INT with every GPS fix. Replies go to the sender; telemetry and the
 vehicle's announcements (STATUSTEXT, PARAM_VALUE echoes, HOME_POSITION) to
 every live peer. All frames of one vehicle and one step go out in one datagram
 to each peer. A datagram whose handling raises is counted (`datagram_errors`),
@@ -144,9 +143,9 @@ class VehicleServer:
     (m/s) per vehicle, what RC 1900 us stands for. metres_per_tick: eBot wheel travel per encoder tick, m.
     failsafe_s: simulated seconds without a command after which a vehicle stops its actuators (its
     RC_OVERRIDE_TIME). armed: the vehicles' state at start (False: the autonomy arms them). tlog: where every frame
-    is logged (or None). streams: "sensor-rate" (default for now: every reading sent as it comes, because
-    bob-autonomy does not yet ask for its streams) or "ardupilot" (ArduPilot Rover's 1 Hz stream defaults until
-    asked; sitl/mavlink_vehicle.py). vehicle_params: autopilot parameter values every vehicle starts with.
+    is logged (or None). streams: "ardupilot" (ArduPilot Rover's 1 Hz stream defaults until asked;
+    sitl/mavlink_vehicle.py) or "sensor-rate" (every reading sent as it comes, unasked). vehicle_params:
+    autopilot parameter values every vehicle starts with.
     """
 
     def __init__(
@@ -160,7 +159,7 @@ class VehicleServer:
         failsafe_s: float = 1.0,
         armed: bool = False,
         tlog: TlogWriter | None = None,
-        streams: str = "sensor-rate",
+        streams: str = "ardupilot",
         vehicle_params: dict[str, float] | None = None,
     ) -> None:
         self.kinds = list(kinds)

@@ -16,10 +16,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from bob_autonomy.autopilot import AutopilotSession
 from bob_autonomy.senses import EbotSenses
-from bob_autonomy.vehicle_link import VehicleLink
+from bob_autonomy.vehicle_link import BUOY, VehicleLink
+from firmware_bridge.commands import normalised_to_pwm, rc_override
 from firmware_bridge.readings import SensorReadings
-from sitl.mavlink_vehicle import SimulatedVehicle, encode_readings, encode_senses
+from sitl.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
 
 FloatArray = np.ndarray
 
@@ -37,13 +39,23 @@ class DirectTransport:
         return {}
 
 
+def motorboat_override(throttle: float, steering: float, target_system: int, encoder) -> bytes:
+    """A motorboat's throttle and steering (each in [-1, 1]) as the vessel sends them (AutopilotSession.override
+    at ArduPilot's default RC calibration): steering on channel 1, throttle on 3, lateral at TRIM, the steering
+    negated in reverse because the autopilot negates it back (Rover/mode.cpp get_pilot_input, PILOT_STEER_TYPE 0)."""
+    steer = -steering if throttle < 0 else steering
+    channels = {1: normalised_to_pwm(steer), 3: normalised_to_pwm(throttle), 4: normalised_to_pwm(0.0)}
+    return rc_override(channels, target_system, 1, encoder=encoder)
+
+
 class MavlinkTransport:
-    """n vehicles of one kind ("buoy" or "ebot"), system ids first_system_id.., talking MAVLink 2 bytes.
+    """n vehicles of one kind ("buoy", "ebot" or "motorboat"), system ids first_system_id.., talking MAVLink 2 bytes.
 
     max_actuator: full-scale thrust (N) or wheel speed (m/s) that full RC deflection stands for. metres_per_tick:
     wheel travel per encoder tick (eBots report wheel travel in metres, as ArduPilot does). clock: the
     simulated time (s) the vessels stamp readings with. streams, vehicle_params: as `SimulatedVehicle`'s
-    streams and params ("sensor-rate" until the vessels ask for their streams).
+    streams and params. With ArduPilot's stream defaults (1 Hz) each vessel asks its vehicle for its messages
+    at the start, with the requests `bob-autonomy` sends (`bob_autonomy.autopilot.AutopilotSession`).
     """
 
     def __init__(
@@ -56,12 +68,11 @@ class MavlinkTransport:
         first_system_id: int = 1,
         metres_per_tick: float = 1.0,
         failsafe_s: float = 1.0,
-        streams: str = "sensor-rate",
+        streams: str = "ardupilot",
         vehicle_params: dict[str, float] | None = None,
     ) -> None:
         self.metres_per_tick = metres_per_tick
-        # streams="sensor-rate" by default: the vessels here do not yet ask for their streams (ArduPilot's default
-        # would give them 1 Hz telemetry); see sitl/mavlink_vehicle.py.
+        self.kind = kind
         self.vehicles = [
             SimulatedVehicle(
                 first_system_id + k, kind, max_actuator, failsafe_s=failsafe_s, armed=True, streams=streams,
@@ -69,14 +80,24 @@ class MavlinkTransport:
             )
             for k in range(n)
         ]
-        self.links = [VehicleLink(first_system_id + k, kind, max_actuator, clock, agent=k) for k in range(n)]
+        telemetry = BUOY if kind == MOTORBOAT else kind  # a motorboat's telemetry is a buoy's (GPS, compass, IMU)
+        self.links = [VehicleLink(first_system_id + k, telemetry, max_actuator, clock, agent=k) for k in range(n)]
         self.sensing: list[EbotSenses] | None = None  # each eBot vessel's range and light readings
+        for k, (link, vehicle) in enumerate(zip(self.links, self.vehicles, strict=True)):
+            session = AutopilotSession(first_system_id + k, kind, link.encoder, clock)
+            replies = vehicle.receive(b"".join(session.stream_requests()), float(clock()))
+            if replies:
+                link.receive(replies)
 
     def down(self, commands: FloatArray, t_s: float) -> FloatArray:
         """Encode each vessel's command, let its vehicle decode it; returns what the vehicles apply (n, 2)."""
         applied = np.zeros((len(self.vehicles), 2))
         for k, (link, vehicle) in enumerate(zip(self.links, self.vehicles, strict=True)):
-            replies = vehicle.receive(link.command(commands[k]), t_s)
+            if self.kind == MOTORBOAT:
+                data = motorboat_override(commands[k, 0], commands[k, 1], link.target_system, link.encoder)
+            else:
+                data = link.command(commands[k])
+            replies = vehicle.receive(data, t_s)
             if replies:
                 link.receive(replies)
             applied[k] = vehicle.actuator(t_s)
@@ -128,4 +149,6 @@ class MavlinkTransport:
             c = link.decoder.counters
             for name in ("decoded", "bad_crc", "malformed", "unknown", "skipped_bytes"):
                 totals[f"vessel_{name}"] += getattr(c, name)
+            for name, count in c.by_type.items():
+                totals[f"vessel_decoded_{name}"] += count
         return dict(totals)
