@@ -557,7 +557,7 @@ def packaged_scenarios() -> dict[str, str]:
         if entry.name.endswith(".toml"):
             data = tomllib.loads(entry.read_text())
             out[entry.name[:-5]] = str(data.get("description", "")).strip().splitlines()[0:1]
-    return {k: (v[0] if v else "") for k, v in out.items()}
+    return {k: (v[0] if v else "") for k, v in sorted(out.items())}  # by name: "a" before "a-b"
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
