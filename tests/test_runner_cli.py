@@ -91,7 +91,8 @@ def test_metrics_json(finished_run) -> None:
     assert metrics["figures"] == ["trajectories.png", "headings.png"]
     # Broadcast every 0.1 s at steps t = 0.0 ... 1.9: 20 rounds of 10 senders, all in range of each other
     # (3 m box, 50 m radio, turning in place): sent 20 * 10 = 200, delivered 20 * 10 * 9 = 1800.
-    assert metrics["network"] == {"sent": 200, "delivered": 1800, "dropped": 0}
+    network = {k: metrics["network"][k] for k in ("sent", "delivered", "dropped")}  # + packet_bytes, mesh
+    assert network == {"sent": 200, "delivered": 1800, "dropped": 0}
 
 
 def test_rows_and_messages_after_removal(tmp_path: Path) -> None:
@@ -109,7 +110,8 @@ def test_rows_and_messages_after_removal(tmp_path: Path) -> None:
     metrics = json.loads((out / "metrics.json").read_text())
     # 10 rounds (t = 0.0 ... 0.9) of 10 senders, then 10 rounds (1.0 ... 1.9) of 7:
     # sent 100 + 70 = 170, delivered 10 * 90 + 10 * 42 = 1320.
-    assert metrics["network"] == {"sent": 170, "delivered": 1320, "dropped": 0}
+    network = {k: metrics["network"][k] for k in ("sent", "delivered", "dropped")}  # + packet_bytes, mesh
+    assert network == {"sent": 170, "delivered": 1320, "dropped": 0}
     assert metrics["figures"] == ["trajectories.png"]
     assert metrics["passed"] is True and metrics["criteria"] == {}
 
