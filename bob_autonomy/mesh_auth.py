@@ -53,6 +53,7 @@ __all__ = [
     "load_mesh_key",
     "stamp_seconds",
     "unix_mesh_clock",
+    "verify_tag",
 ]
 
 STAMP_BYTES = 6  # uint48 timestamp, 10 us units
@@ -105,6 +106,20 @@ def _check_key(key: bytes) -> bytes:
     if not isinstance(key, bytes | bytearray) or len(key) != 32:
         raise ValueError(f"a mesh key is 32 bytes, got {len(key) if isinstance(key, bytes | bytearray) else key!r}")
     return bytes(key)
+
+
+def verify_tag(key: bytes, agent_id: int, signed: bytes | None) -> int:
+    """The timestamp of a packet's signed part (its bytes before the CRC; None when it has no trailer) whose
+    tag is right under `key`; AuthError ``unsigned`` or ``bad_mac`` otherwise. Stateless: replay and
+    freshness are `MeshVerifier`'s (or the lockstep medium's, per listener)."""
+    if signed is None:
+        raise AuthError("unsigned", f"agent {agent_id}: packet carries no signature; the mesh has a key")
+    if len(signed) < TRAILER_BYTES:
+        raise AuthError("bad_mac", f"agent {agent_id}: signed part of {len(signed)} bytes is too short")
+    body, tag = signed[:-TAG_BYTES], signed[-TAG_BYTES:]
+    if not hmac.compare_digest(tag, compute_tag(key, body)):
+        raise AuthError("bad_mac", f"agent {agent_id}: wrong tag (another key, or bytes changed in transit)")
+    return int.from_bytes(body[-STAMP_BYTES:], "little")
 
 
 class MeshSigner:
@@ -165,14 +180,7 @@ class MeshVerifier:
         return stamp
 
     def _check(self, agent_id: int, signed: bytes | None) -> int:
-        if signed is None:
-            raise AuthError("unsigned", f"agent {agent_id}: packet carries no signature; the mesh has a key")
-        if len(signed) < TRAILER_BYTES:
-            raise AuthError("bad_mac", f"agent {agent_id}: signed part of {len(signed)} bytes is too short")
-        body, tag = signed[:-TAG_BYTES], signed[-TAG_BYTES:]
-        if not hmac.compare_digest(tag, compute_tag(self.key, body)):
-            raise AuthError("bad_mac", f"agent {agent_id}: wrong tag (another key, or bytes changed in transit)")
-        stamp = int.from_bytes(body[-STAMP_BYTES:], "little")
+        stamp = verify_tag(self.key, agent_id, signed)
         last = self.last_stamp.get(agent_id)
         if last is not None and stamp <= last:
             raise AuthError(
