@@ -221,20 +221,8 @@ class Vessel:
             self.max_actuator = model.max_thrust_n
             self.pipeline: BuoyPipeline | EbotPipeline = self._buoy_pipeline(model)
         elif c.kind == EBOT:
-            e = c.ebot
-            self.max_actuator = e.max_wheel_speed_mps
-            x, y, heading = c.start_pose
-            self.pipeline = EbotPipeline(
-                np.array([[x, y]]),
-                np.array([heading]),
-                e.wheel_base_m,
-                e.max_wheel_speed_mps,
-                e.metres_per_tick,
-                estimator=c.estimator,
-                controller=c.controller,
-                dt_s=c.dt_s,
-                frame=LocalFrame(*c.origin),
-            )
+            self.max_actuator = c.top_speed_mps or c.ebot.max_wheel_speed_mps
+            self.pipeline = self._ebot_pipeline(self.max_actuator)
         elif c.kind == MOTORBOAT:
             self.max_actuator = 1.0  # (throttle, steering), each in [-1, 1]
             self.pipeline = self._motorboat_pipeline(MotorboatModel.for_top_speed(c.top_speed_mps or 2.0))
@@ -286,6 +274,21 @@ class Vessel:
         self._heading_ref: float | None = None
         self._ignoring_since: float | None = None
         self._ignoring_warned = False
+
+    def _ebot_pipeline(self, max_wheel_speed_mps: float) -> EbotPipeline:
+        c, e = self.config, self.config.ebot
+        x, y, heading = c.start_pose
+        return EbotPipeline(
+            np.array([[x, y]]),
+            np.array([heading]),
+            e.wheel_base_m,
+            max_wheel_speed_mps,
+            e.metres_per_tick,
+            estimator=c.estimator,
+            controller=c.controller,
+            dt_s=c.dt_s,
+            frame=LocalFrame(*c.origin),
+        )
 
     def _buoy_pipeline(self, model: BuoyModel, *, on_ground: bool = False) -> BuoyPipeline:
         c = self.config
@@ -465,6 +468,11 @@ class Vessel:
             self.pipeline = self.body.pipeline = self._motorboat_pipeline(model)
             radius = model.turning_radius_m
             logger.info("motorboat model: %.2f m/s at full throttle, turning radius %.2f m", top, radius)
+        if c.kind == EBOT and c.top_speed_mps is None and speed is not None:
+            # Wheels at full throttle move this fast (an eBot's 0.2 m/s is not a rover's): commands scale to it.
+            self.max_actuator = speed
+            self.pipeline = self.body.pipeline = self._ebot_pipeline(speed)
+            logger.info("vessel model: wheel speed %.2f m/s at full throttle (from the autopilot)", speed)
         if c.kind == BUOY and profile.lateral_capable:
             self._hold_heading = True
         logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)
