@@ -143,3 +143,15 @@ def test_without_an_rc_receiver_the_vessel_still_arms_and_drives(tmp_path) -> No
         track, _errors = _drive(sitl, _config(sitl, (20.0, 0.0)), 45.0)
         assert track and np.hypot(*(track[-1][1] - (20.0, 0.0))) < 5.0
         assert math.isfinite(track[-1][2])
+
+
+def test_skid_steer_rover_as_an_ebot_reaches_goals_with_gps(tmp_path) -> None:
+    # The eBot kind outdoors: no wheel encoders (WENC_TYPE unset), position from GPS, wheel speeds scaled to the
+    # rover's own full-throttle speed (CRUISE_SPEED / CRUISE_THROTTLE).
+    with RoverSitl(BINARY, "skid", tmp_path) as sitl:
+        sitl.wait_initialised()
+        for goal in [(30.0, 0.0), (30.0, 30.0)]:
+            track, errors = _drive(sitl, _config(sitl, goal, kind="ebot"), 50.0)
+            held = [np.hypot(*(xy - goal)) for t, xy, _ in track if t > track[-1][0] - 5.0]
+            assert held and max(held) < 5.0, f"goal {goal}: last 5 s at {held}"
+            assert float(np.median(errors)) < 2.0
