@@ -107,6 +107,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--gcs", help="ground-station link, e.g. udpout:10.0.0.1:14550 or udpin:0.0.0.0:14560")
     run.add_argument("--params-file", help="persistent parameters (JSON, written atomically); default: in memory")
     run.add_argument("--signing-key", help="MAVLink 2 signing key file (see docs/gcs-protocol.md)")
+    run.add_argument("--mesh-key", help="fleet key file: sign and check every mesh packet (docs/mesh.md)")
     run.add_argument("--wait-for-start", action="store_true", help="hold until the GCS sends MISSION_START")
     run.add_argument("--tlog", help="append every MAVLink frame in and out to this .tlog")
     run.add_argument(
@@ -305,6 +306,7 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         gcs=args.gcs,
         params_file=args.params_file,
         signing_key_file=args.signing_key,
+        mesh_key_file=args.mesh_key,
         autostart=not args.wait_for_start,
         tlog=args.tlog,
         arm_timeout_s=args.arm_timeout,

@@ -115,6 +115,7 @@ class VesselConfig:
     gcs: str | None = None
     params_file: str | None = None
     signing_key_file: str | None = None
+    mesh_key_file: str | None = None  # the swarm's fleet key (bob_autonomy.mesh_auth; may be the signing key)
     autostart: bool = True
     tlog: str | None = None
     autopilot: StartOptions = field(default_factory=StartOptions)
@@ -253,8 +254,12 @@ class Vessel:
         self.vehicle.decoder.message_hook = self._vehicle_message
         self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
         self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
+        mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
         network = (
-            ThrottledMesh(LinkMesh(self.mesh_link, c.agent_id, c.memory_fields, self.clock.now), c.broadcast_period_s)
+            ThrottledMesh(
+                LinkMesh(self.mesh_link, c.agent_id, c.memory_fields, self.clock.now, key=mesh_key),
+                c.broadcast_period_s,
+            )
             if self.mesh_link is not None
             else SilentMesh()
         )
@@ -657,3 +662,6 @@ class Vessel:
         self.stats.gcs = self.gcs.log_counters()
         # One JSON line that process fleets read back (sitl.vessel_logs) for metrics.json.
         logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))
+        if isinstance(self.network, ThrottledMesh):  # what the mesh refused, and why (docs/mesh.md)
+            mesh = {**self.network.inner.counters(), "implausible": self.agent.neighbors.counters()}
+            logger.info("vessel %d mesh: %s", self.config.system_id, json.dumps(mesh))
