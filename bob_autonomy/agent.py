@@ -70,8 +70,9 @@ class Agent:
             column = spec.empty(len(poses))
             column[0] = self.memory[name]
             for row, state in enumerate(heard, start=1):
-                if name in state.memory:
-                    column[row] = state.memory[name]
+                value = np.asarray(state.memory.get(name, ()), dtype=float)
+                if value.size == column[row].size:  # a field of another size (or none) is unknown: the fill
+                    column[row] = value.reshape(column[row].shape)
             memory[name] = column
         return SwarmTable(
             ids=np.array([self.agent_id, *(s.agent_id for s in heard)], dtype=np.intp),

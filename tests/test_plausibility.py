@@ -110,3 +110,15 @@ def test_the_agent_checks_claims_against_its_own_pose() -> None:
     agent.step()
     assert [s.agent_id for s, _ in agent.neighbors.fresh(0.0)] == [1]
     assert agent.neighbors.counters()["too_far"] == {"2": 1}
+
+
+def test_memory_fields_of_the_wrong_size_are_unknown_never_a_crash() -> None:
+    from behaviors.heading_consensus import HoldHeading
+
+    body, net, clock = FakeBody(Pose(0.0, 0.0, 0.0)), FakeNetwork(), ManualClock()
+    agent = Agent(7, body, net, HoldHeading(turn_deg=10.0), clock, 5.0)
+    memory = [{"held_heading": np.array([0.5])}, {"held_heading": np.array([])}, {"held_heading": np.ones(3)}]
+    net.inbox = [AgentState(k, 0.0, Pose(1.0, 0.0, 0.0), m) for k, m in enumerate(memory, start=1)]
+    agent.step()  # a scalar field as decoded (one value), one never sent (none), one of three values
+    heard = agent._table(body.pose(), [s for s, _ in agent.neighbors.fresh(0.0)]).memory["held_heading"]
+    assert heard[1] == 0.5 and np.isnan(heard[2:]).all()
