@@ -321,3 +321,23 @@ def test_messages_the_autopilot_will_not_schedule_are_asked_by_their_stream_grou
     asked = {m.req_stream_id: m.req_message_rate for m in _parse(b"".join(s.lagging_stream_requests(now[0], 2.0)))}
     # WHEEL_DISTANCE is in ArduPilot's EXTRA1 group with ATTITUDE; ATTITUDE limited by its sensor alone is not slow
     assert (asked.get(mavlink.MAV_DATA_STREAM_EXTRA1) == 20) is asked_again
+
+
+def test_a_diverged_estimate_is_noticed_and_reset() -> None:
+    # Issue #18: on a 9 m/s boat the filter lagged, diverged to 2e34 m and the process died. The pipeline now
+    # tells a diverged estimate (far from a fresh fix, or non-finite) and starts afresh.
+    from bob_autonomy.geodesy import LocalFrame
+    from bob_autonomy.pipeline import BuoyPipeline
+    from firmware_bridge.readings import GpsFix
+
+    frame = LocalFrame(-35.363261, 149.165230)
+    pipeline = BuoyPipeline(1, frame, np.array([45.0]), estimator="ekf")
+    lat, lon = frame.to_geodetic(0.0, 0.0)
+    pipeline.feed([GpsFix(np.array([0]), np.array([1.0]), np.array([lat]), np.array([lon]))])
+    assert not pipeline.diverged(1.0).any()
+    pipeline.estimator.x[0, 0:2] = [2e34, -1e30]  # what the field saw
+    assert pipeline.diverged(1.5).all()
+    pipeline.reset()
+    assert pipeline.resets == 1 and not pipeline.diverged(1.5).any()
+    pipeline.feed([GpsFix(np.array([0]), np.array([2.0]), np.array([lat]), np.array([lon]))])
+    assert np.hypot(*pipeline.estimate(2.0).position[0]) < 1.0
