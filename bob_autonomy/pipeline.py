@@ -10,6 +10,7 @@ turns into MAVLink.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
 
@@ -26,6 +27,8 @@ from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
 FloatArray = NDArray[np.float64]
+logger = logging.getLogger(__name__)
+YAW_ACCEL_PSD = 0.5**2  # rad^2/s^3: the motorboat EKF's yaw-rate random walk
 ESTIMATORS = ("simple", "ekf")
 CONTROLLERS = ("simple", "mpc")
 
@@ -304,11 +307,37 @@ class MotorboatPipeline(BuoyPipeline):
         self._heading_t = np.full(n, np.nan)  # for the yaw rate of the simple estimator (heading differences)
         self._heading = np.full(n, np.nan)
         self._yaw_rate = np.zeros(n)
+        self.sideways_wishes = 0  # wishes for a heading the velocity does not go along (module: `check_wish`)
+        self._sideways_told = np.zeros(n, dtype=bool)
+
+    def check_wish(self, wish_mps: FloatArray, wish_heading_rad: FloatArray, *, tolerance_rad: float = 0.8) -> int:
+        """Count (and say once per boat, on the log) the wishes a motorboat cannot follow: a heading to hold while
+        still (turning in place) or while moving in another direction (moving sideways). A motorboat goes where
+        it points: it follows the velocity and the heading is dropped, never silently. Returns how many now."""
+        heading = np.asarray(wish_heading_rad, dtype=float).reshape(self.n)
+        wish = np.nan_to_num(np.asarray(wish_mps, dtype=float).reshape(self.n, 2))
+        speed = np.hypot(wish[:, 0], wish[:, 1])
+        course = np.arctan2(wish[:, 1], wish[:, 0])
+        off = np.abs(np.remainder(heading - course + np.pi, 2 * np.pi) - np.pi)
+        bad = np.isfinite(heading) & ((speed < 0.05) | (off > tolerance_rad))
+        for k in np.flatnonzero(bad & ~self._sideways_told):
+            self._sideways_told[k] = True
+            logger.warning(
+                "motorboat %d: the behaviour wishes heading %.0f deg while moving at %.2f m/s towards %.0f deg; a "
+                "motorboat cannot turn in place or move sideways: it follows the velocity, the heading is dropped",
+                k, np.degrees(heading[k]), speed[k], np.degrees(course[k]),
+            )  # fmt: skip
+        self.sideways_wishes += int(np.count_nonzero(bad))
+        return int(np.count_nonzero(bad))
 
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
         if not self.use_ekf:
             return AlphaBetaBuoyEstimator(self.n)
-        params = BuoyEkfParams(model=self.model, drag_balance_sigma_mps2=self.drag_balance_sigma_mps2)
+        # A motorboat's yaw rate changes within a fraction of a second when it steers (a buoy's hardly at all):
+        # a yaw-rate random walk of 0.5^2 rad^2/s^3 lets the gyro and compass follow it instead of being gated.
+        params = BuoyEkfParams(
+            model=self.model, drag_balance_sigma_mps2=self.drag_balance_sigma_mps2, yaw_accel_psd=YAW_ACCEL_PSD
+        )
         return BuoyEkfBank(self.n, params=params)
 
     def yaw_rate(self, t_s: float) -> FloatArray:

@@ -2,8 +2,12 @@
 
 Buoy: omnidirectional, velocity follows the wish within an acceleration limit,
 top speed 1 m/s. eBot: differential drive (unicycle), each wheel at most
-0.20 m/s, six range finders and two light sensors. Dynamics with drag, wind and
-current replace these behind the same interface in the physics fidelity.
+0.20 m/s, six range finders and two light sensors. Motorboat: moves only along
+its heading (it cannot move sideways), turns at most at speed / turning radius
+(so it needs way on to turn, and turns around in a circle rather than in
+place), accelerates within a limit up to its top speed (`max_speed` and
+`turning_radius` per body, 2 m/s and 3 m unless set). Dynamics with drag, wind
+and current replace these behind the same interface in the physics fidelity.
 """
 
 from __future__ import annotations
@@ -16,8 +20,10 @@ from scipy.spatial import cKDTree
 
 from sitl.world import FloatArray, World, ray_segment_distance
 
-BUOY, EBOT = 0, 1
-BODY_KINDS = {"buoy": BUOY, "ebot": EBOT}
+BUOY, EBOT, MOTORBOAT = 0, 1, 2
+BODY_KINDS = {"buoy": BUOY, "ebot": EBOT, "motorboat": MOTORBOAT}
+MOTORBOAT_TURNING_RADIUS_M = 3.0  # default turning radius at full steering
+MOTORBOAT_TURN_SPEED_FRACTION = 0.25  # a motorboat whose wish is behind it turns at least at this fraction of top speed
 
 EBOT_SONAR_ANGLES_RAD = np.radians([0.0, 60.0, 120.0, 180.0, -120.0, -60.0])
 # A sonar returns the nearest echo inside its cone (about +-30 degrees), sampled by these rays.
@@ -40,6 +46,7 @@ class BodySpec:
 BODY_SPECS = {
     BUOY: BodySpec(max_speed_mps=1.0, radius_m=0.3, max_accel_mps2=0.5, max_turn_rate_radps=1.5, range_max_m=0.0),
     EBOT: BodySpec(max_speed_mps=0.2, radius_m=0.08, wheel_base_m=0.1, range_max_m=1.5),
+    MOTORBOAT: BodySpec(max_speed_mps=2.0, radius_m=0.8, max_accel_mps2=0.5, range_max_m=0.0),
 }
 
 
@@ -56,6 +63,8 @@ class KinematicBodies:
         self.radius = np.array([BODY_SPECS[k].radius_m for k in self.kind])
         self.ebots = np.flatnonzero(self.kind == EBOT)
         self.buoys = np.flatnonzero(self.kind == BUOY)
+        self.motorboats = np.flatnonzero(self.kind == MOTORBOAT)
+        self.turning_radius = np.full(n, MOTORBOAT_TURNING_RADIUS_M)  # m, motorboats' at full steering
         self.active = np.ones(n, dtype=bool)
         self.wall_contacts = 0
         self.robot_contacts = 0  # kinematic bodies pass through each other; physical ones count contacts
@@ -75,6 +84,12 @@ class KinematicBodies:
             e = self.ebots
             v, h = self._ebot_step(wish_velocity[e], wish_heading[e], self.heading[e], dt)
             new_velocity[e], new_heading[e] = v, h
+        if self.motorboats.size:
+            m = self.motorboats
+            v, h = _motorboat_step(
+                wish_velocity[m], self.velocity[m], self.heading[m], self.max_speed[m], self.turning_radius[m], dt
+            )
+            new_velocity[m], new_heading[m] = v, h
         new_velocity[~self.active] = 0.0
         new_heading[~self.active] = self.heading[~self.active]
         proposed = self.position + new_velocity * dt
@@ -182,6 +197,27 @@ class KinematicBodies:
         """(len(rows), 2) left and right light readings (W/m^2) of the given eBots."""
         angles = self.heading[rows][:, None] + EBOT_LIGHT_ANGLES_RAD[None]
         return world.light_readings(self.position[rows], angles)
+
+
+def _motorboat_step(
+    wish_v: FloatArray, v: FloatArray, h: FloatArray, top_speed: FloatArray, radius: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """Kinematic motorboats: speed along the heading towards |wish| (times the cosine of the heading error, but at
+    least a turning speed while the wish is behind), within the acceleration limit and top speed; heading towards
+    the wish at most at speed / turning radius. Returns the new velocities (n, 2) m/s and headings (n,) rad."""
+    spec = BODY_SPECS[MOTORBOAT]
+    wish_v = np.nan_to_num(wish_v)
+    wished = np.minimum(np.hypot(wish_v[:, 0], wish_v[:, 1]), top_speed)
+    target = np.where(wished > 1e-6, np.arctan2(wish_v[:, 1], wish_v[:, 0]), h)
+    error = np.mod(target - h + np.pi, 2 * np.pi) - np.pi
+    turning = np.minimum(wished, MOTORBOAT_TURN_SPEED_FRACTION * top_speed)
+    speed_ref = np.maximum(wished * np.maximum(np.cos(error), 0.0), turning)
+    speed = np.maximum(0.0, v[:, 0] * np.cos(h) + v[:, 1] * np.sin(h))  # along the keel: it never slides sideways
+    speed = speed + np.clip(speed_ref - speed, -spec.max_accel_mps2 * dt, spec.max_accel_mps2 * dt)
+    max_turn = speed / radius * dt
+    turn = np.clip(error, -max_turn, max_turn)
+    mid = h + 0.5 * turn
+    return speed[:, None] * np.column_stack((np.cos(mid), np.sin(mid))), h + turn
 
 
 def _turn(delta: FloatArray, max_step: float) -> FloatArray:

@@ -103,8 +103,12 @@ def make_bodies(
     scenario: Scenario, kinds: NDArray[np.int_], position: FloatArray, heading: FloatArray
 ) -> KinematicBodies:
     """Kinematic or physical bodies, as the scenario's fidelity says (physics draws from its own stream)."""
+    boats = [g.motorboat_params() for g in scenario.groups if g.body == "motorboat" for _ in range(g.count)]
     if scenario.fidelity == "kinematic":
-        return KinematicBodies(kinds, position, heading)
+        bodies = KinematicBodies(kinds, position, heading)
+        bodies.max_speed[bodies.motorboats] = [b.top_speed_mps for b in boats]
+        bodies.turning_radius[bodies.motorboats] = [b.turning_radius_m for b in boats]
+        return bodies
     from sitl.physical_bodies import PhysicalBodies
 
     rng = np.random.default_rng([scenario.seed, 2])
@@ -122,6 +126,7 @@ def make_bodies(
         controller=scenario.vessel.controller,
         dt_s=scenario.dt_s,
         link=scenario.vessel.link,
+        motorboat_params=boats,
     )
 
 

@@ -17,12 +17,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.motorboat_control import MotorboatModel
+from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
 from bob_autonomy.simple_estimator import PoseEstimate
 from sitl.bodies import BODY_SPECS, EBOT_SONAR_ANGLES_RAD, KinematicBodies
 from sitl.bodies import EBOT as EBOT_KIND
 from sitl.environment import Environment
-from sitl.mavlink_vehicle import BUOY, EBOT
+from sitl.mavlink_vehicle import BUOY, EBOT, MOTORBOAT
+from sitl.motorboat import MotorboatParams
 from sitl.sensors import noisy_light, noisy_ranges
 from sitl.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicle_transport import DirectTransport, MavlinkTransport
@@ -68,10 +70,12 @@ class PhysicalBodies(KinematicBodies):
         controller: str = "simple",
         dt_s: float = 0.1,
         link: str = "direct",
+        motorboat_params: list[MotorboatParams] | None = None,
     ) -> None:
         self.physics = VehiclePhysics(
-            kinds, position, heading, environment, frame, rng, thrust_fraction, sensor_specs, t0_s=-PRE_ROLL_S
-        )
+            kinds, position, heading, environment, frame, rng, thrust_fraction, sensor_specs, t0_s=-PRE_ROLL_S,
+            motorboat_params=motorboat_params,
+        )  # fmt: skip
         super().__init__(kinds, position, heading)  # truth attributes go to the physics (same values)
         p = self.physics
         self.environment, self.rng, self.frame, self.dt_s = environment, rng, frame, dt_s
@@ -88,6 +92,14 @@ class PhysicalBodies(KinematicBodies):
         self.ebot_vessels = EbotPipeline(
             self.position[e], self.heading[e], wheel_base, self.ebot_params.max_wheel_speed_mps, per_tick, **options
         )
+        # Motorboats: each vessel knows its boat's top speed and turning radius (a real one reads SPEED_MAX and
+        # TURN_RADIUS from its autopilot) and estimates as a buoy does.
+        m = self.motorboats
+        boats = p.motorboat_params
+        self.max_speed[m] = [q.top_speed_mps for q in boats]
+        self.turning_radius[m] = [q.turning_radius_m for q in boats]
+        models = [MotorboatModel.for_top_speed(q.top_speed_mps, q.turning_radius_m) for q in boats]
+        self.motorboat_vessels = MotorboatPipeline(m.size, frame, models, p.motorboat_thrust_fraction, **options)
         self.link = link
         self._mavlink_light: tuple | None = None  # (t, rows, light) decoded with this step's range finders
         if link == "mavlink":
@@ -104,8 +116,11 @@ class PhysicalBodies(KinematicBodies):
                 first_system_id=b.size + 1,
                 metres_per_tick=per_tick,
             )
+            self.motorboat_link = MavlinkTransport(
+                MOTORBOAT, m.size, 1.0, clock, first_system_id=b.size + e.size + 1, metres_per_tick=per_tick
+            )
         elif link == "direct":
-            self.buoy_link = self.ebot_link = DirectTransport()
+            self.buoy_link = self.ebot_link = self.motorboat_link = DirectTransport()
         else:
             raise ValueError(f"unknown vehicle link {link!r}; choose direct or mavlink")
         while self.t < -1e-9:
@@ -113,14 +128,17 @@ class PhysicalBodies(KinematicBodies):
 
     @property
     def mpc_fallbacks(self) -> int:
-        return self.buoy_vessels.mpc_fallbacks + self.ebot_vessels.mpc_fallbacks
+        vessels = (self.buoy_vessels, self.ebot_vessels, self.motorboat_vessels)
+        return sum(v.mpc_fallbacks for v in vessels)
 
     def link_counters(self) -> dict[str, int]:
         """MAVLink counters of the vehicles and vessels (empty for the direct link)."""
         totals: dict[str, int] = {}
-        for transport in {id(t): t for t in (self.buoy_link, self.ebot_link)}.values():
+        for transport in {id(t): t for t in (self.buoy_link, self.ebot_link, self.motorboat_link)}.values():
             for name, value in transport.counters().items():
                 totals[name] = totals.get(name, 0) + value
+        if self.motorboats.size:  # wishes a motorboat could not follow (turn in place, move sideways): said, counted
+            totals["motorboat_sideways_wishes"] = self.motorboat_vessels.sideways_wishes
         return totals
 
     def believed(self) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -131,7 +149,8 @@ class PhysicalBodies(KinematicBodies):
     def _estimate(self) -> PoseEstimate:
         n = len(self)
         out = PoseEstimate(np.full((n, 2), np.nan), np.zeros((n, 2)), np.full(n, np.nan))
-        for rows, vessels in ((self.buoys, self.buoy_vessels), (self.ebots, self.ebot_vessels)):
+        pairs = ((self.buoys, self.buoy_vessels), (self.ebots, self.ebot_vessels))
+        for rows, vessels in (*pairs, (self.motorboats, self.motorboat_vessels)):
             if rows.size:
                 e = vessels.estimate(self.t)
                 out.position[rows], out.velocity[rows], out.heading[rows] = e.position, e.velocity, e.heading
@@ -139,16 +158,22 @@ class PhysicalBodies(KinematicBodies):
 
     def apply(self, wish_velocity: FloatArray, wish_heading: FloatArray, dt: float, world: World) -> None:
         """One control step: the vessels' controllers, the link, dynamics, environment, sensors, estimators."""
-        b, e = self.buoys, self.ebots
+        b, e, m = self.buoys, self.ebots, self.motorboats
         idle = self.t < 0.0
         thrust = np.zeros((b.size, 2))
         wheels = np.zeros((e.size, 2))
+        boats = None
         if b.size:
             thrust = self.buoy_link.down(self.buoy_vessels.thrust(wish_velocity[b], self.t, idle=idle), self.t)
         if e.size:
             wheels = self.ebot_vessels.wheels(wish_velocity[e], wish_heading[e], self.t, idle=idle)
             wheels = self.ebot_link.down(wheels, self.t)
-        self.physics.step(thrust, wheels, dt, world)
+        if m.size:
+            if not idle:
+                self.motorboat_vessels.check_wish(wish_velocity[m], wish_heading[m])
+            boats = self.motorboat_vessels.commands(wish_velocity[m], self.t, idle=idle)
+            boats = self.motorboat_link.down(boats, self.t)
+        self.physics.step(thrust, wheels, dt, world, boats)
         self._sense()
 
     def _sense(self) -> None:
@@ -158,6 +183,8 @@ class PhysicalBodies(KinematicBodies):
             self.buoy_vessels.feed(self.buoy_link.up(readings["buoy"], self.t))
         if "ebot" in readings:
             self.ebot_vessels.feed(self.ebot_link.up(readings["ebot"], self.t))
+        if "motorboat" in readings:
+            self.motorboat_vessels.feed(self.motorboat_link.up(readings["motorboat"], self.t))
 
     def range_finders(self, rows: NDArray[np.int_], world: World) -> FloatArray:
         """The sonar echoes of the kinematic model, with range noise. Over the MAVLink link they travel as

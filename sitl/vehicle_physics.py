@@ -2,7 +2,8 @@
 
 What a vehicle's hardware does, and nothing of what its autonomy does: it applies
 actuator commands (buoy: body-frame thrust x forward, y left, N; eBot: left and
-right wheel speeds, m/s) for a time step, and its sensors sample the truth into
+right wheel speeds, m/s; motorboat: throttle and steering, each in [-1, 1], see
+`sitl.motorboat`) for a time step, and its sensors sample the truth into
 the typed readings a vessel would receive. The lockstep fleet
 (`sitl.physical_bodies.PhysicalBodies`) puts every vessel's estimator and
 controller between the two in memory; the process fleet (`sitl.process_fleet`)
@@ -12,8 +13,9 @@ the metrics and the recording.
 
 Every random draw comes from the generators given (dynamics and sensors from
 `rng`, gusts from the environment's own), in a fixed order per step (buoy
-dynamics, eBot dynamics, gusts, buoy sensors, eBot sensors), so a run with a
-seed is exactly repeatable.
+dynamics, eBot dynamics, motorboat dynamics, gusts, buoy sensors, eBot sensors,
+motorboat sensors), so a run with a seed is exactly repeatable; motorboats draw
+nothing when there are none, so fleets without them are unchanged.
 """
 
 from __future__ import annotations
@@ -23,9 +25,10 @@ from numpy.typing import NDArray
 
 from bob_autonomy.geodesy import LocalFrame
 from firmware_bridge.readings import SensorReadings
-from sitl.bodies import BUOY, EBOT, KinematicBodies
+from sitl.bodies import BUOY, EBOT, MOTORBOAT, KinematicBodies
 from sitl.dynamics import BuoyDynamics, BuoyParams, DiffDriveDynamics, DiffDriveParams
 from sitl.environment import Environment
+from sitl.motorboat import MotorboatDynamics, MotorboatParams
 from sitl.sensors import (
     CompassSpec,
     EncoderSpec,
@@ -50,9 +53,11 @@ class VehiclePhysics:
     dynamics' and the sensors' noise. thrust_fraction (N,): each buoy's thrust limit as a fraction of nominal
     (weak batteries; ignored for eBots). sensor_specs: {"gps", "compass", "imu", "encoders", "ranges",
     "light"} -> spec (defaults for missing ones). t0_s: the simulated time at construction, s.
+    motorboat_params: one MotorboatParams per motorboat (in row order; default: sitl.motorboat's defaults); their
+    thrust_fraction applies too (weak batteries).
 
-    Rows: `buoys` and `ebots` are the fleet rows of each kind, in order; actuator arrays and the readings'
-    `agents` are indexed within a kind (row `buoys[k]` is buoy k).
+    Rows: `buoys`, `ebots` and `motorboats` are the fleet rows of each kind, in order; actuator arrays and the
+    readings' `agents` are indexed within a kind (row `buoys[k]` is buoy k).
     """
 
     def __init__(
@@ -66,6 +71,7 @@ class VehiclePhysics:
         thrust_fraction: FloatArray,
         sensor_specs: dict[str, object],
         t0_s: float = 0.0,
+        motorboat_params: list[MotorboatParams] | None = None,
     ) -> None:
         self.kind = np.asarray(kinds, dtype=int)
         self.position = np.asarray(position, dtype=float).copy()
@@ -102,6 +108,25 @@ class VehiclePhysics:
             sensor_specs.get("imu", ImuSpec()),
             self.encoder_spec,
         )
+        # Motorboats last, so that a fleet without them draws exactly what it did before they existed.
+        m = self.motorboats = np.flatnonzero(self.kind == MOTORBOAT)
+        self.motorboat_params = list(motorboat_params) if motorboat_params is not None else [MotorboatParams()] * m.size
+        if len(self.motorboat_params) != m.size:
+            raise ValueError(f"{len(self.motorboat_params)} motorboat parameter sets for {m.size} motorboats")
+        self.motorboat_thrust_fraction = np.asarray(thrust_fraction, dtype=float)[m]
+        self.motorboat: MotorboatDynamics | None = None
+        self.motorboat_sensors: SensorSuite | None = None
+        if m.size:
+            self.motorboat = MotorboatDynamics(self.motorboat_params, self.position[m], self.heading[m], rng)
+            self.motorboat_sensors = SensorSuite(
+                m.size,
+                frame,
+                rng,
+                sensor_specs.get("gps", GpsSpec()),
+                sensor_specs.get("compass", CompassSpec()),
+                sensor_specs.get("imu", ImuSpec()),
+                None,
+            )
         self.t = float(t0_s)
         self.wind = np.zeros_like(self.position)
         self.current = np.zeros_like(self.position)
@@ -121,9 +146,17 @@ class VehiclePhysics:
         """Wheel travel per encoder tick, m."""
         return self.encoder_spec.metres_per_tick
 
-    def step(self, thrust_body_n: FloatArray, wheels_mps: FloatArray, dt_s: float, world: World) -> None:
+    def step(
+        self,
+        thrust_body_n: FloatArray,
+        wheels_mps: FloatArray,
+        dt_s: float,
+        world: World,
+        motorboat_commands: FloatArray | None = None,
+    ) -> None:
         """Apply the actuators for dt_s s: (len(buoys), 2) body-frame thrust, N (x forward, y left; clipped to
-        each buoy's limit) and (len(ebots), 2) wheel speeds, m/s (left, right). Inactive vehicles do not move.
+        each buoy's limit), (len(ebots), 2) wheel speeds, m/s (left, right) and (len(motorboats), 2) throttle and
+        steering (None: neutral). Inactive vehicles do not move.
 
         Wind and current are taken at the positions before the step and held over it (`wind`, `current`).
         """
@@ -148,6 +181,14 @@ class VehiclePhysics:
             )
             self.wall_contacts = self.ebot.wall_contacts
             self.robot_contacts = self.ebot.robot_contacts
+        if self.motorboat is not None:
+            m = self.motorboats
+            boats = self.motorboat
+            boats.active = self.active[m]
+            command = np.zeros((m.size, 2)) if motorboat_commands is None else motorboat_commands
+            boats.step(command, dt_s, self.wind[m], self.current[m], self.motorboat_thrust_fraction)
+            self.position[m], self.velocity[m] = boats.position_m, boats.velocity_mps
+            self.heading[m] = boats.heading_rad
         self.environment.step(dt_s)
         self.t += dt_s
 
@@ -159,7 +200,8 @@ class VehiclePhysics:
         self.t += dt_s
 
     def sense(self) -> dict[str, SensorReadings]:
-        """Sample the sensors at the current time: {"buoy": readings, "ebot": readings} for the kinds present.
+        """Sample the sensors at the current time: {"buoy": ..., "ebot": ..., "motorboat": ...} readings for the kinds
+        present.
 
         The readings' `agents` index vehicles within their kind; times are simulated seconds. Call once per
         step, after `step`.
@@ -180,6 +222,11 @@ class VehiclePhysics:
                 d.heading_rad,
                 d.yaw_rate_radps,
                 d.wheel_travel_m,
+            )
+        if self.motorboat is not None and self.motorboat_sensors is not None:
+            d = self.motorboat
+            out["motorboat"] = self.motorboat_sensors.sample(
+                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps
             )
         return out
 
