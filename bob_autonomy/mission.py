@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.gcs import COMPONENT_ID, MavlinkCodec
+from bob_autonomy.gcs_codec import ALLOWED_UNSIGNED
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.params import BEHAVIOR_NAMES, PARAMS, LatLon, ParamError, validate_latlon
 from firmware_bridge.links import LinkError, parse_connection_string
@@ -213,6 +214,8 @@ class MissionClient:
         sid = msg.get_srcSystem()
         if msg.get_srcComponent() != self.target_component:
             return
+        if self.codec.signing_key is not None and msg.get_msgId() in ALLOWED_UNSIGNED:
+            return  # let through unsigned (radio status): it proves nothing of who sent it, so it moves nothing
         vessel = self._vessels.get(sid)
         kind = msg.get_type()
         if vessel is None:
