@@ -231,6 +231,11 @@ class GcsComponent(MissionProtocol):
         target (a ground station's HEARTBEAT, which the autopilot's GCS failsafe listens for)."""
         if msg.get_srcSystem() == self.system_id and msg.get_srcComponent() == self.component_id:
             return False  # our own frame come back
+        if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_REQUEST_DATA_STREAM:
+            # The process owns the stream rates of its port: ArduPilot resets every interval of a stream group to
+            # the rate asked (GCS_Common.cpp handle_request_data_stream), so MAVProxy's 4 Hz would starve the
+            # estimator. MAVProxy does not forward this message to its own outputs either.
+            return False
         target = getattr(msg, "target_system", None)
         if target is None:
             return True

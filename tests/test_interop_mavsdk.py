@@ -50,8 +50,7 @@ from mavsdk.plugins.telemetry.telemetry import FixType, FlightMode, Telemetry  #
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from bob_autonomy.gcs import GcsComponent  # noqa: E402
-from bob_autonomy.params import PARAMS, ParameterStore  # noqa: E402
+from bob_autonomy.params import PARAMS  # noqa: E402
 
 VESSELS = (1, 2)
 GCS_SYSTEM_ID = 245  # MAVSDK's ground-station system id (Configuration GROUND_STATION)
@@ -167,22 +166,6 @@ def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
     north = math.radians(b[0] - a[0]) * 6_371_000.0
     east = math.radians(b[1] - a[1]) * 6_371_000.0 * math.cos(math.radians(a[0]))
     return math.hypot(north, east)
-
-
-def test_component_191_heartbeat_carries_no_mode_flag() -> None:
-    """MAVSDK reads the flight mode from any HEARTBEAT with MAV_MODE_FLAG_CUSTOM_MODE_ENABLED; the autonomy's must not
-    have it, or a vessel in MANUAL shows as ACRO (our custom_mode 1 = behaviour running) half of the time."""
-    gcs = GcsComponent(7, ParameterStore(None), clock=lambda: 0.0)
-    gcs.behavior_running = True
-    gcs.tick()
-    parser = mavlink.MAVLink(None)
-    beats = [m for f in gcs.outgoing() for m in parser.parse_buffer(f) or [] if m.get_type() == "HEARTBEAT"]
-    assert beats, "the component sends a HEARTBEAT on its first tick"
-    beat = beats[0]
-    assert (beat.get_srcSystem(), beat.get_srcComponent()) == (7, AUTONOMY)
-    assert beat.autopilot == mavlink.MAV_AUTOPILOT_INVALID and beat.type == mavlink.MAV_TYPE_ONBOARD_CONTROLLER
-    assert beat.base_mode == 0
-    assert beat.custom_mode & 1 == 1  # our own readers (MissionClient) still find the behaviour bits
 
 
 @realtime
