@@ -24,6 +24,15 @@ vehicles (never to what the agents believe):
 * a delivered packet goes, unchanged, to the listener's address after a latency
   drawn by `RadioChannel.latency` (simulated seconds).
 
+Intruders (`sitl.mesh_security.IntruderSpec`, issue 15): radios that are not
+members transmit, every broadcast period of simulated time from their
+`start_s`, an unsigned packet claiming their agent id and position (memory
+fields empty); members within the intruder's `reach_m` hear it through the
+channel model at the distance scaled by nominal range over reach (as in the
+lockstep medium), after the channel's latency. They never pass the address
+checks above: on the air there are no addresses. Counted in `intruder_sent`
+and `intruder_delivered`; what the members made of them is in their logs.
+
 Without a channel model (a scenario without `[network] radio`) every agent in
 range gets every packet at once. Removed (inactive) vehicles neither send nor
 hear. All draws come from the seeded generator given, so a relay fed the same
@@ -37,6 +46,7 @@ from __future__ import annotations
 import contextlib
 import heapq
 import itertools
+import math
 import select
 import socket
 import time
@@ -45,8 +55,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.interfaces import AgentState
-from bob_autonomy.mesh import PacketError, decode_state, packet_agent_id
+from bob_autonomy.interfaces import AgentState, Pose
+from bob_autonomy.mesh import PacketError, decode_state, encode_state, packet_agent_id
+from sitl.mesh_security import IntruderSpec
 from sitl.radio import RadioChannel
 
 DEFAULT_MESH_PORT = 15000
@@ -61,7 +72,7 @@ class RadioRelay:
     vehicles. channel: the radio model, or None for perfect delivery within range_m. broadcast_period_s: the
     window (s) in which a transmitter counts as an interferer. rng: draws deliveries and latencies. clock:
     simulated time, s (default: wall time). memory_fields: the swarm's memory field names, in packet order
-    (to decode `latest`).
+    (to decode `latest`). intruders: keyless radios on the channel (see the module docstring).
     """
 
     def __init__(
@@ -78,6 +89,7 @@ class RadioRelay:
         host: str = "127.0.0.1",
         port: int = DEFAULT_MESH_PORT,
         memory_fields: Sequence[str] = (),
+        intruders: Sequence[IntruderSpec] = (),
     ) -> None:
         if range_m <= 0 or broadcast_period_s <= 0:
             raise ValueError("range_m and broadcast_period_s must be positive")
@@ -105,6 +117,9 @@ class RadioRelay:
         self._seq = itertools.count()
         self.sent = self.delivered = self.dropped = self.invalid = 0
         self.out_of_range = self.oversize = self.from_inactive = self.spoofed = 0
+        self.intruders = list(intruders)
+        self._intruder_next_s = [float(spec.start_s) for spec in self.intruders]
+        self.intruder_sent = self.intruder_delivered = 0
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -112,8 +127,11 @@ class RadioRelay:
     def counters(self) -> dict[str, int]:
         """sent (valid packets from active agents), delivered and dropped (per listener in range), invalid
         datagrams, out_of_range (listener-packet pairs beyond range), oversize packets, from_inactive packets,
-        spoofed packets (an agent's id from another address than its own)."""
+        spoofed packets (an agent's id from another address than its own); with intruders, intruder_sent and
+        intruder_delivered (listener-packet pairs)."""
         names = ("sent", "delivered", "dropped", "invalid", "out_of_range", "oversize", "from_inactive", "spoofed")
+        if self.intruders:
+            names += ("intruder_sent", "intruder_delivered")
         return {name: int(getattr(self, name)) for name in names}
 
     # -- in ------------------------------------------------------------------------------------------------
@@ -202,12 +220,48 @@ class RadioRelay:
     # -- out -----------------------------------------------------------------------------------------------
 
     def next_due_s(self) -> float | None:
-        """Simulated time (s) of the next delivery waiting, or None."""
-        return self._queue[0][0] if self._queue else None
+        """Simulated time (s) of the next delivery waiting or intruder transmission, or None."""
+        due = [self._queue[0][0]] if self._queue else []
+        for t, spec in zip(self._intruder_next_s, self.intruders, strict=True):
+            if spec.stop_s is None or t < spec.stop_s:
+                due.append(t)
+        return min(due) if due else None
+
+    def _intrude(self, now: float) -> None:
+        """The intruders whose transmission is due send one unsigned packet each (see the module docstring)."""
+        for k, spec in enumerate(self.intruders):
+            due = self._intruder_next_s[k]
+            if now + 1e-9 < due or (spec.stop_s is not None and now >= spec.stop_s):
+                continue
+            self._intruder_next_s[k] = due + self.period_s * (math.floor((now - due) / self.period_s) + 1)
+            claimed = spec.claimed_position or spec.position
+            pose = Pose(float(claimed[0]), float(claimed[1]), math.radians(spec.heading_deg))
+            packet = encode_state(AgentState(spec.claims_agent, now, pose, {}), self.memory_fields)
+            self.intruder_sent += 1
+            active = np.asarray(self.active(), dtype=bool)
+            listeners = np.array([j for j in self.addresses if active[j] and j != spec.claims_agent], dtype=np.intp)
+            if listeners.size == 0:
+                continue
+            reach = spec.reach_m or self.range_m
+            distance = np.hypot(*(np.asarray(self.positions(), dtype=float)[listeners] - spec.position).T)
+            listeners, distance = listeners[distance <= reach], distance[distance <= reach]
+            if self.channel is None:
+                ok, latency = np.ones(listeners.size, dtype=bool), np.zeros(listeners.size)
+            else:
+                position = np.asarray(self.positions(), dtype=float)
+                interferers = self._interferers(-1, listeners, position, active, now)
+                scaled = distance * self.channel.nominal_range_m / reach
+                ok = self.channel.deliver(self.rng, scaled, interferers)
+                latency = self.channel.latency(self.rng, int(np.count_nonzero(ok)))
+            self.intruder_delivered += int(np.count_nonzero(ok))
+            for listener, delay in zip(listeners[ok].tolist(), latency.tolist(), strict=True):
+                heapq.heappush(self._queue, (now + delay, next(self._seq), packet, self.addresses[listener]))
 
     def flush(self) -> int:
-        """Send the deliveries that are due now; returns how many were sent."""
+        """Send the deliveries that are due now (intruders transmit first when due); returns how many were sent."""
         now, sent = float(self.clock()), 0
+        if self.intruders:
+            self._intrude(now)
         while self._queue and self._queue[0][0] <= now + 1e-9:
             _, _, packet, address = heapq.heappop(self._queue)
             try:

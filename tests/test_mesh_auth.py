@@ -264,3 +264,59 @@ def test_a_keyless_mesh_reads_signed_and_unsigned_packets_as_today() -> None:
     finally:
         link.close()
         relay.close()
+
+
+# -- an intruder on the process fleet's simulated radio (sitl.radio_relay) -------------------------------------
+
+
+@pytest.mark.xdist_group("realtime")
+def test_the_relay_hosts_an_intruder_whose_packets_keyed_members_refuse_and_open_members_take() -> None:
+    from sitl.mesh_security import IntruderSpec
+    from sitl.radio_relay import RadioRelay
+
+    positions = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    now = [0.0]
+    intruder = IntruderSpec(claims_agent=0, position=(0.0, 500.0), reach_m=600.0, start_s=1.0)
+    relay = RadioRelay(
+        3,
+        lambda: positions,
+        lambda: np.ones(3, dtype=bool),
+        channel=None,
+        range_m=300.0,
+        broadcast_period_s=1.0,
+        rng=np.random.default_rng(1),
+        clock=lambda: now[0],
+        port=0,
+        memory_fields=["goal"],
+        intruders=[intruder],
+    )
+    clock = Clock()
+    links = [open_link(f"udpout:127.0.0.1:{relay.address[1]}") for _ in range(3)]
+    meshes = [
+        LinkMesh(links[0], 0, ["goal"], lambda: 0.0, key=KEY, mesh_clock=clock),
+        LinkMesh(links[1], 1, ["goal"], lambda: 0.0, key=KEY, mesh_clock=clock),
+        LinkMesh(links[2], 2, ["goal"], lambda: 0.0),  # a member without the key: an open mesh
+    ]
+    try:
+        for k, mesh in enumerate(meshes):  # each makes itself known to the relay
+            mesh.broadcast(state(agent_id=k, x=10.0 * k))
+        time.sleep(0.05)
+        relay.read()
+        assert relay.next_due_s() == 1.0  # the intruder's first transmission wakes the fleet's loop
+        for t in (1.0, 2.0, 3.5):
+            now[0] = t
+            relay.flush()
+        time.sleep(0.05)
+        heard = [mesh.receive() for mesh in meshes]
+        counters = relay.counters()
+        assert (counters["intruder_sent"], counters["intruder_delivered"]) == (3, 6)  # agent 0 ignores its own id
+        assert counters["spoofed"] == 0  # no address on the air to check
+        assert 0 not in [s.agent_id for s in heard[0]]  # agent 0: its own id is never a neighbour
+        assert all(s.pose.y != 500.0 for s in heard[1])  # the keyed member refuses the intruder ...
+        assert meshes[1].counters()["rejected"]["unsigned"]["0"] == 3  # ... and counts it
+        # The member without the key takes all three: only the key (or plausibility) stops the intruder.
+        assert [(s.agent_id, s.pose.y) for s in heard[2] if s.pose.y == 500.0] == [(0, 500.0)] * 3
+    finally:
+        relay.close()
+        for link in links:
+            link.close()
