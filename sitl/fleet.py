@@ -99,11 +99,16 @@ def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.r
     return np.array(points)
 
 
+def motorboat_params(scenario: Scenario) -> list:
+    """The MotorboatParams of every motorboat of the scenario, in fleet row order."""
+    return [g.motorboat_params() for g in scenario.groups if g.body == "motorboat" for _ in range(g.count)]
+
+
 def make_bodies(
     scenario: Scenario, kinds: NDArray[np.int_], position: FloatArray, heading: FloatArray
 ) -> KinematicBodies:
     """Kinematic or physical bodies, as the scenario's fidelity says (physics draws from its own stream)."""
-    boats = [g.motorboat_params() for g in scenario.groups if g.body == "motorboat" for _ in range(g.count)]
+    boats = motorboat_params(scenario)
     if scenario.fidelity == "kinematic":
         bodies = KinematicBodies(kinds, position, heading)
         bodies.max_speed[bodies.motorboats] = [b.top_speed_mps for b in boats]

@@ -52,8 +52,9 @@ from behaviors.registry import behavior_class
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.supervisor import behavior_params
 from firmware_bridge.tlog import TlogWriter
-from sitl.bodies import BODY_KINDS, BUOY
-from sitl.fleet import LockstepFleet, build_world, initial_poses
+from sitl.bodies import BODY_KINDS
+from sitl.fleet import LockstepFleet, build_world, initial_poses, motorboat_params
+from sitl.mesh_security import mesh_log_counters, write_fleet_key
 from sitl.metrics import METRICS
 from sitl.plots import write_figures
 from sitl.radio_relay import DEFAULT_MESH_PORT, RadioRelay
@@ -212,6 +213,7 @@ class ProcessFleet:
             np.random.default_rng([scenario.seed, 2]),
             thrust,
             scenario.sensors.specs(),
+            motorboat_params=motorboat_params(scenario),
         )
         self.n = len(self.bodies)
         self.frame = scenario.origin.frame()
@@ -290,16 +292,27 @@ class ProcessFleet:
                 "(the script can send them) or drop --external-gcs"
             )
         self.needs_gcs = any(e.action == "set-behavior" for e in s.events)
+        if s.network.security.faults:
+            raise ScenarioError(f"{s.name}: [network.security] faults are simulated by lockstep runs only")
+        self.mesh_key_file = write_fleet_key(s, self.out)  # every vessel gets --mesh-key when the fleet has a key
         self._check_events()
-        kinds = ["buoy" if k == BUOY else "ebot" for k in self.bodies.kind]
-        limits = [
-            self.bodies.buoy_params.max_thrust_n if k == "buoy" else self.bodies.max_wheel_speed_mps for k in kinds
-        ]
+        names = {v: k for k, v in BODY_KINDS.items()}
+        kinds = [names[int(k)] for k in self.bodies.kind]
+        full = {"buoy": self.bodies.buoy_params.max_thrust_n, "ebot": self.bodies.max_wheel_speed_mps, "motorboat": 1.0}
+        limits = [full[k] for k in kinds]
+        # A motorboat's autopilot says how fast it goes and how tight it turns (ArduPilot's TURN_RADIUS: 0..10 m).
+        boats = iter(self.bodies.motorboat_params)
+        own: list[dict[str, float] | None] = []
+        for kind in kinds:
+            boat = next(boats) if kind == "motorboat" else None
+            mine = {"SPEED_MAX": boat.top_speed_mps, "TURN_RADIUS": min(boat.turning_radius_m, 10.0)} if boat else None
+            own.append(mine)
         self.tlog = TlogWriter(self.out / "vehicles.tlog")
         try:
             self.server = VehicleServer(
                 kinds,
                 limits,
+                own_params=own,
                 host=o.host,
                 base_port=o.base_port,
                 metres_per_tick=self.bodies.metres_per_tick,
@@ -319,6 +332,7 @@ class ProcessFleet:
                 host=o.host,
                 port=o.mesh_port,
                 memory_fields=self.memory_fields,
+                intruders=net.security.intruders,
             )
         except OSError as error:
             raise ProcessFleetError(str(error)) from error
@@ -371,6 +385,8 @@ class ProcessFleet:
         command += ["--broadcast-period", repr(float(s.network.broadcast_period_s))]
         command += ["--neighbor-expiry", repr(float(s.network.expiry_s))]
         command += ["--gcs", f"udpout:{o.host}:{o.gcs_port}"]
+        if self.mesh_key_file is not None:
+            command += ["--mesh-key", str(self.mesh_key_file)]
         out = open(self.out / f"vessel-{i + 1:02d}.out", "wb")  # noqa: SIM115 - closed in stop_processes()
         self._logs.append(out)
         try:
@@ -444,7 +460,7 @@ class ProcessFleet:
             actuators[:] = 0.0
         actuators[~b.active] = 0.0
         if self.started:
-            b.step(actuators[b.buoys], actuators[b.ebots], self.dt, self.world)
+            b.step(actuators[b.buoys], actuators[b.ebots], self.dt, self.world, actuators[b.motorboats])
         else:
             b.hold(self.dt)
         senses = b.ebot_senses(self.world) if b.ebots.size else None
@@ -641,6 +657,7 @@ class ProcessFleet:
         metrics["realtime"] = {"speed": self.options.speed, "dt_s": self.dt, **self.realtime.summary()}
         metrics["vehicles"] = {**self.server.counters(), "tlog_frames": self.tlog.frames}
         metrics["gcs"] = gcs_counters({i + 1: self.out / f"vessel-{i + 1:02d}.log" for i in range(self.n)})
+        metrics["mesh"] = mesh_log_counters({i + 1: self.out / f"vessel-{i + 1:02d}.log" for i in range(self.n)})
         metrics["processes"] = {
             "exit_codes": self.exit_codes,
             "killed": self.killed,

@@ -42,7 +42,7 @@ from firmware_bridge.readings import SensorReadings
 from firmware_bridge.tlog import TlogWriter, split_frames
 from sitl.bodies import BODY_SPECS
 from sitl.bodies import EBOT as EBOT_KIND
-from sitl.mavlink_vehicle import BUOY, EBOT, SimulatedVehicle, encode_readings, encode_senses
+from sitl.mavlink_vehicle import BUOY, EBOT, MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
 
 DEFAULT_BASE_PORT = 5760  # ArduPilot SITL instance 0 (SERIAL0)
 PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
@@ -139,13 +139,15 @@ class VehicleEndpoint:
 class VehicleServer:
     """The vehicles of a fleet on UDP (see the module docstring).
 
-    kinds: "buoy" or "ebot" per vehicle (fleet row order). max_actuators: full-scale thrust (N) or wheel speed
-    (m/s) per vehicle, what RC 1900 us stands for. metres_per_tick: eBot wheel travel per encoder tick, m.
+    kinds: "buoy", "ebot" or "motorboat" per vehicle (fleet row order). max_actuators: full-scale thrust (N),
+    wheel speed (m/s) or 1 (a motorboat's throttle and steering) per vehicle, what RC 1900 us stands for.
+    metres_per_tick: eBot wheel travel per encoder tick, m.
     failsafe_s: simulated seconds without a command after which a vehicle stops its actuators (its
     RC_OVERRIDE_TIME). armed: the vehicles' state at start (False: the autonomy arms them). tlog: where every frame
     is logged (or None). streams: "ardupilot" (ArduPilot Rover's 1 Hz stream defaults until asked;
     sitl/mavlink_vehicle.py) or "sensor-rate" (every reading sent as it comes, unasked). vehicle_params:
-    autopilot parameter values every vehicle starts with.
+    autopilot parameter values every vehicle starts with; own_params: each vehicle's own on top (or None), e.g. a
+    motorboat's SPEED_MAX and TURN_RADIUS.
     """
 
     def __init__(
@@ -161,22 +163,27 @@ class VehicleServer:
         tlog: TlogWriter | None = None,
         streams: str = "ardupilot",
         vehicle_params: dict[str, float] | None = None,
+        own_params: Sequence[dict[str, float] | None] | None = None,
     ) -> None:
         self.kinds = list(kinds)
+        own = list(own_params) if own_params is not None else [None] * len(self.kinds)
         self.metres_per_tick = float(metres_per_tick)
         self.tlog = tlog
         self.endpoints: list[VehicleEndpoint] = []
         try:
-            for i, (kind, limit) in enumerate(zip(self.kinds, max_actuators, strict=True)):
+            for i, (kind, limit, mine) in enumerate(zip(self.kinds, max_actuators, own, strict=True)):
+                params = {**(vehicle_params or {}), **(mine or {})}
                 vehicle = SimulatedVehicle(
-                    i + 1, kind, limit, failsafe_s=failsafe_s, armed=armed, streams=streams, params=vehicle_params
+                    i + 1, kind, limit, failsafe_s=failsafe_s, armed=armed, streams=streams, params=params
                 )
                 self.endpoints.append(VehicleEndpoint(vehicle, host, vehicle_port(i, base_port), tlog))
         except BaseException:
             self.close()
             raise
         # Fleet rows of each kind, in order: sensor readings index vehicles within their kind.
-        self.rows = {k: np.array([i for i, x in enumerate(self.kinds) if x == k], dtype=np.intp) for k in (BUOY, EBOT)}
+        self.rows = {
+            k: np.array([i for i, x in enumerate(self.kinds) if x == k], dtype=np.intp) for k in (BUOY, EBOT, MOTORBOAT)
+        }
 
     def __len__(self) -> int:
         return len(self.endpoints)
