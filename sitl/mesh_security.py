@@ -33,7 +33,13 @@ checks refuse.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import math
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
 from typing import Annotated
 
 import numpy as np
@@ -56,6 +62,8 @@ __all__ = [
     "PlausibilitySpec",
     "add_mesh_criteria",
     "medium_security",
+    "mesh_log_counters",
+    "write_fleet_key",
 ]
 
 MAX_COORDINATE_M = 1e7
@@ -281,3 +289,44 @@ def medium_security(scenario, group_of: NDArray[np.intp]) -> MediumSecurity:
     range_m = net.range_m if channel is None else min(net.range_m, channel.nominal_range_m)
     key = np.random.default_rng([scenario.seed, 5]).bytes(32) if spec.key else None
     return MediumSecurity(spec, key, group_of, [g.name for g in scenario.groups], range_m)
+
+
+def write_fleet_key(scenario, directory: Path) -> Path | None:
+    """For a process fleet: the scenario's fleet key (the same bytes a lockstep run of it uses) written to
+    `directory`/mesh.key (32 raw bytes, owner-only), to hand to every `bob-autonomy run --mesh-key`; None when
+    the scenario has no key."""
+    if not scenario.network.security.key:
+        return None
+    path = Path(directory) / "mesh.key"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as out:
+        out.write(np.random.default_rng([scenario.seed, 5]).bytes(32))
+    return path
+
+
+_MESH_LINE = re.compile(r"vessel (\d+) mesh: (\{.*\})\s*$")
+
+
+def mesh_log_counters(logs: Mapping[int, Path]) -> dict:
+    """What the vessels of a process fleet said their mesh refused (the `vessel N mesh: {...}` line each
+    `bob-autonomy run` logs when it stops): `by_vessel` (system id as text -> that line's counters),
+    `rejected_total` (every refusal, key and plausibility, over the vessels that reported) and `unreported`
+    (system ids whose log has no such line: killed, or no mesh)."""
+    by_vessel: dict[str, dict] = {}
+    unreported: list[int] = []
+    total = 0
+    for system_id, log in sorted(logs.items()):
+        found = None
+        with contextlib.suppress(OSError):
+            for line in Path(log).read_text(errors="replace").splitlines():
+                match = _MESH_LINE.search(line)
+                if match and int(match.group(1)) == system_id:
+                    with contextlib.suppress(json.JSONDecodeError):
+                        found = json.loads(match.group(2))
+        if not isinstance(found, dict):
+            unreported.append(system_id)
+            continue
+        by_vessel[str(system_id)] = found
+        for table in (found.get("rejected", {}), found.get("implausible", {})):
+            total += sum(int(v) for by_id in table.values() if isinstance(by_id, dict) for v in by_id.values())
+    return {"rejected_total": total, "by_vessel": by_vessel, "unreported": unreported}
