@@ -73,32 +73,27 @@ RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
 # Messages the estimators need and the rates asked for (Hz), with the slowest rate still usable. ArduPilot
 # refuses intervals under 0.8 of its main loop period (GCS_Common.cpp `cap_message_interval`; Rover's loop runs
 # at 50 Hz), so nothing here is asked faster than 25 Hz.
+_HOUSEKEEPING = {
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
+    mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
+}
+# Buoys and motorboats are estimated alike: GPS, compass (the autopilot's attitude) and IMU.
+_AFLOAT = {
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
+    mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
+    **_HOUSEKEEPING,
+}
 STREAMS_HZ = {
-    BUOY: {
-        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
-        mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
-        mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
-        mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
-        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
-        mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
-    },
-    # A motorboat is estimated as a buoy is (GPS, compass, IMU): the same messages.
-    MOTORBOAT: {
-        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
-        mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
-        mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
-        mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
-        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
-        mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
-    },
+    BUOY: _AFLOAT,
+    MOTORBOAT: _AFLOAT,
     EBOT: {
         mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 0.0),
         mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
         mavlink.MAVLINK_MSG_ID_WHEEL_DISTANCE: (20.0, 0.0),
         mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: (20.0, 0.0),
-        mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
-        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
-        mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
+        **_HOUSEKEEPING,
     },
 }
 

@@ -27,6 +27,7 @@ from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
 logger = logging.getLogger(__name__)
 YAW_ACCEL_PSD = 0.5**2  # rad^2/s^3: the motorboat EKF's yaw-rate random walk
 ESTIMATORS = ("simple", "ekf")
@@ -169,6 +170,10 @@ class BuoyPipeline:
         return body
 
 
+ODOMETRY_SILENT_S = 1.0  # no wheel reading for this long: the wheels say nothing of the motion
+FIX_VELOCITY_GAIN = 0.5  # share of a new fix-to-fix velocity taken into the smoothed one
+
+
 class EbotPipeline:
     """Dead reckoning (odometry or EKF) and wheel control (proportional or MPC) of n differential-drive robots.
 
@@ -196,6 +201,11 @@ class EbotPipeline:
         self.frame, self.gps_sigma_m = frame, float(gps_sigma_m)
         position = np.asarray(position_m, dtype=float).reshape(-1, 2)
         self.n = position.shape[0]
+        self.max_wheel_speed_mps = float(max_wheel_speed_mps)
+        self.last_odometry_t = np.full(self.n, -np.inf)  # newest wheel reading and GPS fix of each robot, s
+        self.last_fix_t = np.full(self.n, np.nan)
+        self.last_fix_xy = np.zeros((self.n, 2))
+        self.fix_velocity = np.zeros((self.n, 2))  # velocity seen in the fixes, m/s (robots without encoders)
         self.use_ekf, self.use_mpc = estimator == "ekf", controller == "mpc"
         self.metres_per_tick = metres_per_tick
         estimator_class = EbotEkfBank if self.use_ekf else OdometryEstimator
@@ -221,9 +231,12 @@ class EbotPipeline:
         for reading in _flatten(readings):
             if isinstance(reading, GpsFix) and self.frame is not None and self.use_ekf:
                 x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
+                self._predict_without_odometry(reading.agents, reading.t_s, np.column_stack((x, y)))
                 sigma = np.full(len(reading.agents), self.gps_sigma_m)
                 self.estimator.update_position(reading.agents, reading.t_s, np.column_stack((x, y)), sigma)
                 continue
+            if isinstance(reading, (EncoderReading, WheelDistance)):
+                self.last_odometry_t[reading.agents] = reading.t_s
             if isinstance(reading, EncoderReading):
                 self.estimator.update_encoders(reading.agents, reading.t_s, reading.ticks)
             elif isinstance(reading, WheelDistance):  # metres, as ArduPilot reports wheel travel
@@ -233,6 +246,24 @@ class EbotPipeline:
                 _update_compass(self.estimator, reading, self.use_ekf)
             else:
                 self.ignored += 1
+
+    def _predict_without_odometry(self, agents: IntArray, t_s: FloatArray, xy: FloatArray) -> None:
+        """When a robot's wheels say nothing (no encoders), the motion since the last fix comes from the fixes:
+        the position is carried on at the velocity of the recent fixes (smoothed, FIX_VELOCITY_GAIN) and its
+        variance grows by (0.5 v_max dt)^2, so a moving robot is followed without lag rather than gated."""
+        times = np.broadcast_to(np.asarray(t_s, dtype=float), np.shape(agents))
+        for row, (i, t) in enumerate(zip(np.asarray(agents), times, strict=True)):
+            last = self.last_fix_t[i]
+            dt = t - last if np.isfinite(last) else 0.0
+            if dt > 0 and t - self.last_odometry_t[i] > ODOMETRY_SILENT_S:
+                seen = (xy[row] - self.last_fix_xy[i]) / dt
+                self.fix_velocity[i] += FIX_VELOCITY_GAIN * (seen - self.fix_velocity[i])
+                f = self.estimator.filters[i]
+                f.kf.x[0:2, 0] += self.fix_velocity[i] * dt
+                f.kf.P[0:2, 0:2] += np.eye(2) * (0.5 * self.max_wheel_speed_mps * dt) ** 2
+                f._velocity = self.fix_velocity[i].copy()
+            if dt >= 0:
+                self.last_fix_t[i], self.last_fix_xy[i] = t, xy[row]
 
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
