@@ -259,9 +259,11 @@ class BroadcastMedium:
     def _held(self, pairs: NDArray[np.int64], old: NDArray[np.int64]) -> tuple[NDArray[np.bool_], IntArray, FloatArray]:
         """For each (listener, agent id) in `pairs`: whether an unexpired message of that id is held (`old`
         keys), its table row and when it was heard (s; NaN when none)."""
-        _, o_row, o_rank = self._rows_of(old)
-        o_pairs = self._claimed_pairs(old)
-        order = np.argsort(o_pairs, kind="stable")
+        o_listener, o_row, o_rank = self._rows_of(old)
+        o_pairs = o_listener.astype(np.int64) * self.security.n_ids + self.table.ids[o_row]
+        # Without intruders the keys' order is already (listener, id): no sort needed.
+        in_order = o_pairs.size < 2 or bool(np.all(o_pairs[1:] > o_pairs[:-1]))
+        order = np.arange(o_pairs.size) if in_order else np.argsort(o_pairs, kind="stable")
         if order.size == 0:
             return np.zeros(pairs.size, dtype=bool), np.zeros(pairs.size, dtype=np.intp), np.full(pairs.size, np.nan)
         at = order[np.minimum(np.searchsorted(o_pairs[order], pairs), order.size - 1)]
@@ -304,6 +306,8 @@ class BroadcastMedium:
         before intruders', as a receiver reads them one by one): each later one is judged against the first
         (its code set when it jumped from it); the last that passes replaces the others. Returns the indices
         of the replaced ones."""
+        if self.transmitters == self.n:  # no intruders: each agent sends its own id once a round
+            return np.zeros(0, dtype=np.intp)
         ok = np.flatnonzero(code == 0)
         order = ok[np.lexsort((sender[ok], pairs[ok]))]
         later = np.zeros(order.size, dtype=bool)
