@@ -1,9 +1,10 @@
-"""The `bob-sitl` command: list and run scenarios, sweep them, run them as a fleet of processes.
+"""The `bob-sitl` command: list and run scenarios, sweep them, reproduce the paper, run them as a fleet of processes.
 
-Exit status: 0 when every criterion passed, 1 when one failed, 2 for a bad
-scenario, option or output directory (one message naming the file or option
-and the key), 130 when a run or sweep is interrupted (Ctrl-C or SIGTERM; nothing
-is written).
+Exit status: 0 when every criterion passed (a sweep: when it finished; a reproduction: when every
+criterion passed at 9 of 10 seeds), 1 when one failed, 2 for a bad scenario, option, output
+directory or Dask cluster (one message naming the file or option and the key), 130 when a run,
+sweep or reproduction is interrupted (Ctrl-C or SIGTERM; a run writes nothing, a sweep or a
+reproduction keeps its finished runs for --resume).
 Runs larger than `sitl.budget`'s limits are refused before they start unless
 `--force` is given.
 """
@@ -20,9 +21,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from sitl.budget import MAX_AGENT_STEPS, MAX_AGENTS, MAX_TRAJECTORY_ROWS, check_run_size
+from sitl.distributed import ClusterError
 from sitl.runner import run_to_directory
 from sitl.scenario import ScenarioError, load_scenario, packaged_scenarios
-from sitl.sweep import run_sweep
+from sitl.sweep import parse_param, partial_path, read_partial, run_sweep
 
 FORCE_HELP = (
     f"run even beyond the size limits (at most {MAX_AGENTS:,} agents, {MAX_AGENT_STEPS['kinematic']:,.0f} "
@@ -81,15 +83,54 @@ def _parser() -> argparse.ArgumentParser:
     )
     fleet.add_argument("--quiet", action="store_true", help="no progress bar")
     fleet.add_argument("--force", action="store_true", help=FORCE_HELP)
-    sweep = sub.add_parser("sweep", help="run a scenario over swarm sizes and seeds; plot metrics against size")
+    sweep = sub.add_parser(
+        "sweep", help="run a scenario over swarm sizes, parameter values and seeds; plot metrics against one of them"
+    )
     sweep.add_argument("scenario", metavar="NAME|FILE")
-    sweep.add_argument("--agents", type=int, nargs="+", required=True, help="swarm sizes")
-    sweep.add_argument("--runs", type=int, default=10, help="seeds per size (1..RUNS)")
+    sweep.add_argument("--agents", type=int, nargs="+", help="swarm sizes (default: the scenario's)")
+    sweep.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="PATH=V1,V2,...",
+        help="sweep a scenario value: a dotted path (network.range_m, groups.0.params.p0, "
+        "environment.wind.speed_mps) and its values; repeatable: the runs are the product",
+    )
+    sweep.add_argument("--runs", type=int, default=10, help="seeds per size and values (1..RUNS)")
+    sweep.add_argument("--duration", type=float, metavar="SECONDS", help="simulated duration of each run, s")
     sweep.add_argument("--plot", nargs="+", default=[], metavar="METRIC", help="scalar metrics to plot")
+    sweep.add_argument("--x", metavar="PATH", help="the plot's axis: agents or a --param path")
     sweep.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/NAME-sweep)")
+    _execution_options(sweep)
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep.add_argument("--force", action="store_true", help=FORCE_HELP)
+    reproduce = sub.add_parser(
+        "reproduce", help="run the paper's experiments over many seeds; report each criterion's pass rate"
+    )
+    reproduce.add_argument(
+        "experiments", nargs="*", metavar="EXPERIMENT", help="names or DESIGN.md numbers (default: all)"
+    )
+    reproduce.add_argument("--seeds", type=int, required=True, metavar="N", help="seeds per experiment")
+    reproduce.add_argument("--first-seed", type=int, default=1, metavar="S", help="seeds S..S+N-1 (default 1)")
+    reproduce.add_argument("--out", type=Path, metavar="DIR", help="output directory (default: runs/reproduce)")
+    reproduce.add_argument(
+        "--duration", type=float, metavar="SECONDS", help="cap every experiment's duration (smoke tests only)"
+    )
+    _execution_options(reproduce)
+    reproduce.add_argument("--quiet", action="store_true", help="no progress bar")
+    reproduce.add_argument("--force", action="store_true", help=FORCE_HELP)
     return parser
+
+
+def _execution_options(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N", help="run on a local Dask cluster of N processes")
+    where.add_argument(
+        "--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (e.g. tcp://10.0.0.5:8786)"
+    )
+    parser.add_argument(
+        "--resume", action="store_true", help="continue an interrupted run: its finished runs are skipped"
+    )
 
 
 def _fail(message: object) -> int:
@@ -124,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
         return _sweep(args)
     if args.command == "fleet":
         return _fleet(args)
+    if args.command == "reproduce":
+        return _reproduce(args)
     return _run(args)
 
 
@@ -194,9 +237,10 @@ def _sweep(args: argparse.Namespace) -> int:
         return _fail(f"--runs must be at least 1, got {args.runs}")
     out = args.out
     try:
-        scenario = load_scenario(args.scenario)
+        params = [parse_param(text) for text in args.param]
+        scenario = load_scenario(args.scenario).with_overrides(duration_s=args.duration)
         out = out or Path("runs") / f"{scenario.name}-sweep"
-        with _sigterm_interrupts():
+        with _sigterm_interrupts(), _keeps_partial(out):
             rows = run_sweep(
                 scenario,
                 args.agents,
@@ -205,16 +249,79 @@ def _sweep(args: argparse.Namespace) -> int:
                 args.plot,
                 progress=not args.quiet,
                 force=args.force,
+                params=params,
+                x=args.x,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                resume=args.resume,
             )
-    except (ScenarioError, FileExistsError) as error:
+    except (ScenarioError, FileExistsError, ClusterError) as error:
         return _fail(error)
     except OSError as error:
         return _fail(f"cannot write the outputs to {out}: {error}")
     except KeyboardInterrupt:
-        print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
         return 130
-    print(f"{len(rows)} runs, {sum(r['passed'] for r in rows)} passed their criteria")
+    print(f"{len(rows)} runs, {sum(bool(r['passed']) for r in rows)} passed their criteria; outputs in {out}/")
     return 0
+
+
+def _reproduce(args: argparse.Namespace) -> int:
+    from sitl.reproduce import PASS_RATE, reproduce, reproduced
+
+    if args.seeds < 1:
+        return _fail(f"--seeds must be at least 1, got {args.seeds}")
+    if args.first_seed < 0:
+        return _fail(f"--first-seed must be at least 0, got {args.first_seed}")
+    out = args.out or Path("runs") / "reproduce"
+    try:
+        with _sigterm_interrupts(), _keeps_partial(out):
+            report = reproduce(
+                args.experiments,
+                range(args.first_seed, args.first_seed + args.seeds),
+                out,
+                duration_s=args.duration,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                resume=args.resume,
+                progress=not args.quiet,
+                force=args.force,
+            )
+    except (ScenarioError, FileExistsError, ClusterError) as error:
+        return _fail(error)
+    except OSError as error:
+        return _fail(f"cannot write the outputs to {out}: {error}")
+    except KeyboardInterrupt:
+        return 130
+    short = [r for r in report if r["item"] == "criterion" and r["pass_rate"] < PASS_RATE - 1e-12]
+    for r in short:
+        print(f"{r['experiment']}: {r['name']} passed at {r['passed']} of {r['runs']} seeds", file=sys.stderr)
+    print(f"report in {out}/report.md")
+    return 0 if reproduced(report) else 1
+
+
+@contextlib.contextmanager
+def _keeps_partial(out: Path) -> Iterator[None]:
+    """On an interrupt or a failed run, say what was kept of the finished runs and how to go on."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        kept = len(read_partial(partial_path(out)))
+        if kept:
+            print(
+                f"bob-sitl: interrupted; {kept} finished run(s) kept in {partial_path(out)}: the same command "
+                "with --resume continues",
+                file=sys.stderr,
+            )
+        else:
+            print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
+        raise
+    except (ScenarioError, FileExistsError, ClusterError):
+        raise  # before the first run: nothing to keep
+    except Exception:
+        kept = len(read_partial(partial_path(out)))
+        if kept:
+            print(f"bob-sitl: a run failed; {kept} finished run(s) kept in {partial_path(out)}", file=sys.stderr)
+        raise
 
 
 if __name__ == "__main__":
