@@ -169,3 +169,24 @@ def test_a_key_with_too_many_memory_values_is_refused_before_the_run() -> None:
     assert m.payload_bytes == 105  # over the XBee's 100: the channel model would refuse it
     with pytest.raises(ValueError, match="105 bytes"):
         m.broadcast(0.0, np.ones(2, dtype=bool))
+
+
+def test_a_process_fleet_gets_the_lockstep_runs_key_and_reads_what_its_vessels_refused(tmp_path) -> None:
+    import json
+    import os
+
+    from sitl.mesh_security import medium_security, mesh_log_counters, write_fleet_key
+    from sitl.scenario import load_scenario
+
+    scenario = load_scenario("leader-follower-intruder")
+    path = write_fleet_key(scenario, tmp_path)
+    assert path is not None and os.stat(path).st_mode & 0o777 == 0o600
+    group_of = np.repeat(np.arange(3), [g.count for g in scenario.groups])
+    assert path.read_bytes() == medium_security(scenario, group_of).key and len(path.read_bytes()) == 32
+    assert write_fleet_key(load_scenario("leader-follower"), tmp_path / "none") is None  # no key: no file
+
+    line = {"sent": 5, "rejected": {"unsigned": {"0": 23}, "stale": {}}, "implausible": {"jump": {"4": 2}}}
+    (tmp_path / "vessel-02.log").write_text("start\nvessel 2 stopped: {}\nvessel 2 mesh: " + json.dumps(line) + "\n")
+    (tmp_path / "vessel-03.log").write_text("vessel 3 stopped: {}\n")  # killed before it could say
+    report = mesh_log_counters({2: tmp_path / "vessel-02.log", 3: tmp_path / "vessel-03.log"})
+    assert report == {"rejected_total": 25, "by_vessel": {"2": line}, "unreported": [3]}
