@@ -90,6 +90,16 @@ class MavproxySession:
         self.send(command)
         return self.expect(pattern, timeout_s)
 
+    def retry(self, command: str, pattern: str, timeout_s: float = 10.0) -> re.Match:
+        """Send a command every second until a line matches (`status X` prints nothing before X has arrived)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                return self.command(command, pattern, 1.0)
+            except AssertionError:
+                if time.monotonic() > deadline:
+                    raise
+
     def probe(self) -> dict:
         """What MAVProxy received from each system and component (tests/mavproxy_probe.py)."""
         return json.loads(self.command("probe", r"PROBE (\{.*\})").group(1))  # a prompt may follow on the line
@@ -334,11 +344,9 @@ def test_mavproxy_shows_a_simulated_vehicle_of_a_process_fleet(ground) -> None:
     try:
         session.expect(r"Detected vehicle 1:1", 20.0)
         session.expect(r"ARMED", 10.0)  # armed by its bob-autonomy process
-        session.send("status GLOBAL_POSITION_INT")
-        match = session.expect(r"GLOBAL_POSITION_INT \{.*lat : (-?\d+), lon : (-?\d+)", 10.0)
+        match = session.retry("status GLOBAL_POSITION_INT", r"GLOBAL_POSITION_INT \{.*lat : (-?\d+), lon : (-?\d+)")
         position = (int(match.group(1)) / 1e7, int(match.group(2)) / 1e7)
         assert _distance_m(position, fleet.origin) < 300.0, position  # at its start point near the origin
-        session.send("status HEARTBEAT")
-        session.expect(r"HEARTBEAT \{type : 11, autopilot : 3", 10.0)  # a surface boat, ArduPilot-like
+        session.retry("status HEARTBEAT", r"HEARTBEAT \{type : 11, autopilot : 3")  # a surface boat, ArduPilot-like
     finally:
         session.close()
