@@ -63,6 +63,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import casadi as ca
 import numpy as np
@@ -306,77 +307,19 @@ class MotorboatMpc:
         self._previous = (0.0, 0.0)  # (throttle, steering) last returned
         self._bar = np.zeros((self.horizon, 2))  # the linearisation point (speed, steering) per step
         self._bounds_limit = math.nan
-        self.problem = self._formulate()
-        self._build()
-        self._solve_qp(0.0, 0.0, 0.5, 1.0, 1.0, 1.0)  # warm-up: the first real call is not the slow one
-        self.reset()
-
-    # ------------------------------------------------------------------ formulation
-
-    def _formulate(self) -> dict[str, ca.SX]:
-        """The QP in casadi SX: z (throttles, then steerings), p (module docstring), cost f, change rows g."""
-        m, n, h = self.model, self.horizon, self.step_s
-        w_heading, w_speed, w_steer, w_dthrottle, w_dsteer = self.weights
-        p = ca.SX.sym("p", 7 + 2 * n)
-        u0, r0, target, reference, heading_on, throttle_prev, steer_prev = (p[i] for i in range(7))
-        u_bar, s_bar = p[7 : 7 + n], p[7 + n : 7 + 2 * n]
-        z = ca.SX.sym("z", 2 * n)
-        throttle, steer = z[:n], z[n:]
-        c1, c2, mass = m.linear_drag_n_per_mps, m.quadratic_drag_n_per_mps2, m.mass_kg
-        lag = math.exp(-h / m.yaw_time_constant_s)
-        top = m.top_speed_mps
-        cost, u, r, delta = 0, u0, r0, 0
-        previous = (throttle_prev, steer_prev)
-        for k in range(n):
-            # Yaw rate the steering asks for at the speed of the step's start, linearised about the plan.
-            bar = ca.fmax(u_bar[k], MIN_TURN_SPEED_MPS)
-            r_steady = -(s_bar[k] * u + steer[k] * bar - s_bar[k] * bar) / m.turning_radius_m
-            r_next = lag * r + (1.0 - lag) * r_steady
-            delta = delta + 0.5 * h * (r + r_next)
-            # Speed: drag linearised (Jacobian) at the plan's speed for this step, exact zero-order hold.
-            speed = ca.sqrt(u_bar[k] ** 2 + 1e-12)
-            jac = c1 + 2.0 * c2 * speed
-            x = jac * h / mass
-            a = ca.exp(-x)
-            b = ca.if_else(x < 1e-9, h / mass, (1.0 - a) / jac)
-            u = a * u + b * (m.max_thrust_n * throttle[k] + c2 * u_bar[k] * speed)
-            r = r_next
-            cost += w_heading * heading_on * (delta - target) ** 2 + w_speed * ((u - reference) / top) ** 2
-            cost += w_steer * steer[k] ** 2
-            cost += w_dthrottle * (throttle[k] - previous[0]) ** 2 + w_dsteer * (steer[k] - previous[1]) ** 2
-            previous = (throttle[k], steer[k])
-        rows = steer[1:] - steer[:-1]
-        return {"x": z, "p": p, "f": cost, "g": rows, "u_last": u}
-
-    def _build(self) -> None:
-        z, p, cost, g = self.problem["x"], self.problem["p"], self.problem["f"], self.problem["g"]
-        hessian = ca.hessian(cost, z)[0]
-        gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
-        constraints = ca.jacobian(g, z)
-        self._constraint_values = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
-        data = ca.Function("motorboat_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
-        self._data = _BufferedCall(data)
-        self._qp = _BufferedCall(
-            _conic("motorboat_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()), self._data.outputs
+        # The QP is formulated and its casadi Functions built once per boat model and tuning (cached: a fleet of
+        # identical boats shares them); each controller has its own buffers.
+        self.problem, data, conic, constraint_values, self._speeds = _qp_functions(
+            model, self.step_s, self.horizon, self.weights, self.solver
         )
-        self._qp.inputs["a"][:] = self._constraint_values
+        self._data = _BufferedCall(data)
+        self._qp = _BufferedCall(conic, self._data.outputs)
+        self._qp.inputs["a"][:] = constraint_values
         step = self.model.steering_slew_per_s * self.step_s
         self._qp.inputs["lba"][:] = -step
         self._qp.inputs["uba"][:] = step
-        # The plan's speeds through the water (nonlinear surge model), the next call's linearisation point.
-        throttles, u0 = ca.SX.sym("throttles", self.horizon), ca.SX.sym("u0")
-        self._speeds = ca.Function("motorboat_speeds", [throttles, u0], [self._predicted_speeds(throttles, u0)])
-
-    def _predicted_speeds(self, z: ca.SX, u0: ca.SX) -> ca.SX:
-        """(horizon,) speeds through the water the nonlinear surge model predicts for the throttle plan, m/s."""
-        m, h, sub = self.model, self.step_s, 5
-        u, out = u0, []
-        for k in range(self.horizon):
-            for _ in range(sub):
-                drag = (m.linear_drag_n_per_mps + m.quadratic_drag_n_per_mps2 * ca.fabs(u)) * u
-                u = u + (h / sub) * (m.max_thrust_n * z[k] - drag) / m.mass_kg
-            out.append(u)
-        return ca.vertcat(*out)
+        self._solve_qp(0.0, 0.0, 0.5, 1.0, 1.0, 1.0)  # warm-up: the first real call is not the slow one
+        self.reset()
 
     def reset(self) -> None:
         """Forget the previous command and plan (the boat is idle)."""
@@ -468,3 +411,69 @@ class MotorboatMpc:
         """`steering` moved at most one step's slew from the previous command."""
         step = self.model.steering_slew_per_s * self.step_s
         return min(max(steering, self._previous[1] - step), self._previous[1] + step)
+
+
+def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tuple[float, ...]) -> dict[str, ca.SX]:
+    """The QP in casadi SX: z (throttles, then steerings), p (module docstring), cost f, change rows g."""
+    m, n, h = model, horizon, step_s
+    w_heading, w_speed, w_steer, w_dthrottle, w_dsteer = weights
+    p = ca.SX.sym("p", 7 + 2 * n)
+    u0, r0, target, reference, heading_on, throttle_prev, steer_prev = (p[i] for i in range(7))
+    u_bar, s_bar = p[7 : 7 + n], p[7 + n : 7 + 2 * n]
+    z = ca.SX.sym("z", 2 * n)
+    throttle, steer = z[:n], z[n:]
+    c1, c2, mass = m.linear_drag_n_per_mps, m.quadratic_drag_n_per_mps2, m.mass_kg
+    lag = math.exp(-h / m.yaw_time_constant_s)
+    top = m.top_speed_mps
+    cost, u, r, delta = 0, u0, r0, 0
+    previous = (throttle_prev, steer_prev)
+    for k in range(n):
+        # Yaw rate the steering asks for at the speed of the step's start, linearised about the plan.
+        bar = ca.fmax(u_bar[k], MIN_TURN_SPEED_MPS)
+        r_steady = -(s_bar[k] * u + steer[k] * bar - s_bar[k] * bar) / m.turning_radius_m
+        r_next = lag * r + (1.0 - lag) * r_steady
+        delta = delta + 0.5 * h * (r + r_next)
+        # Speed: drag linearised (Jacobian) at the plan's speed for this step, exact zero-order hold.
+        speed = ca.sqrt(u_bar[k] ** 2 + 1e-12)
+        jac = c1 + 2.0 * c2 * speed
+        x = jac * h / mass
+        a = ca.exp(-x)
+        b = ca.if_else(x < 1e-9, h / mass, (1.0 - a) / jac)
+        u = a * u + b * (m.max_thrust_n * throttle[k] + c2 * u_bar[k] * speed)
+        r = r_next
+        cost += w_heading * heading_on * (delta - target) ** 2 + w_speed * ((u - reference) / top) ** 2
+        cost += w_steer * steer[k] ** 2
+        cost += w_dthrottle * (throttle[k] - previous[0]) ** 2 + w_dsteer * (steer[k] - previous[1]) ** 2
+        previous = (throttle[k], steer[k])
+    return {"x": z, "p": p, "f": cost, "g": steer[1:] - steer[:-1]}
+
+
+def _predicted_speeds(model: MotorboatModel, step_s: float, z: ca.SX, u0: ca.SX) -> ca.SX:
+    """Speeds through the water the nonlinear surge model predicts for the throttle plan z, m/s (5 Euler
+    sub-steps per step)."""
+    m, sub = model, 5
+    u, out = u0, []
+    for k in range(z.shape[0]):
+        for _ in range(sub):
+            drag = (m.linear_drag_n_per_mps + m.quadratic_drag_n_per_mps2 * ca.fabs(u)) * u
+            u = u + (step_s / sub) * (m.max_thrust_n * z[k] - drag) / m.mass_kg
+        out.append(u)
+    return ca.vertcat(*out)
+
+
+@lru_cache(maxsize=32)
+def _qp_functions(
+    model: MotorboatModel, step_s: float, horizon: int, weights: tuple[float, ...], solver: str
+) -> tuple[dict[str, ca.SX], ca.Function, ca.Function, FloatArray, ca.Function]:
+    """(problem, QP data Function p -> (h, g), conic solver, constraint matrix nonzeros, plan speeds Function)."""
+    problem = _formulate(model, step_s, horizon, weights)
+    z, p, cost, g = problem["x"], problem["p"], problem["f"], problem["g"]
+    hessian = ca.hessian(cost, z)[0]
+    gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
+    constraints = ca.jacobian(g, z)
+    values = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
+    data = ca.Function("motorboat_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
+    conic = _conic("motorboat_mpc_qp", solver, hessian.sparsity(), constraints.sparsity())
+    throttles, u0 = ca.SX.sym("throttles", horizon), ca.SX.sym("u0")
+    speeds = ca.Function("motorboat_speeds", [throttles, u0], [_predicted_speeds(model, step_s, throttles, u0)])
+    return problem, data, conic, values, speeds
