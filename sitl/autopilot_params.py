@@ -47,12 +47,14 @@ SERVO_MOTOR1 = 33  # motor1..motor4 = 33..36
 KIND_FRAMES = {
     # A BoB buoy: a boat with vectored thrust, i.e. an omni frame (OmniX: 4 motors), so lateral (RCMAP_YAW) moves it
     # sideways (AP_MotorsUGV::setup_omni, is_omni).
+    # SPEED_MAX: what full thrust really gives (1 m/s, BODY_SPECS and sitl/dynamics.py), as an owner would set
+    # it; without it the autonomy would take CRUISE_SPEED / CRUISE_THROTTLE (4 m/s with Rover's defaults).
     "buoy": {"FRAME_CLASS": FRAME_BOAT, "FRAME_TYPE": FRAME_TYPE_OMNIX, "SERVO1_FUNCTION": SERVO_MOTOR1,
              "SERVO2_FUNCTION": SERVO_MOTOR1 + 1, "SERVO3_FUNCTION": SERVO_MOTOR1 + 2,
-             "SERVO4_FUNCTION": SERVO_MOTOR1 + 3},
+             "SERVO4_FUNCTION": SERVO_MOTOR1 + 3, "SPEED_MAX": 1.0},
     # The eBot: a skid-steer rover (throttle left / right on SERVO1 / SERVO3), two wheel encoders.
     "ebot": {"FRAME_CLASS": FRAME_ROVER, "FRAME_TYPE": FRAME_TYPE_UNDEFINED, "SERVO1_FUNCTION": SERVO_THROTTLE_LEFT,
-             "SERVO3_FUNCTION": SERVO_THROTTLE_RIGHT, "WENC_TYPE": 10, "WENC2_TYPE": 10},
+             "SERVO3_FUNCTION": SERVO_THROTTLE_RIGHT, "WENC_TYPE": 10, "WENC2_TYPE": 10, "SPEED_MAX": 0.2},
     # A motorboat: steering + throttle, no lateral (Rover/Parameters.cpp set_default_function CH_1, CH_3;
     # Tools/autotest/default_params/motorboat.parm: FRAME_CLASS 2); dynamics in sitl/motorboat.py.
     "motorboat": {"FRAME_CLASS": FRAME_BOAT, "FRAME_TYPE": FRAME_TYPE_UNDEFINED,
