@@ -557,7 +557,7 @@ class Vessel:
                 wait = self.clock.wall_seconds(next_tick - self.clock.now())
                 if wait <= 0:
                     break
-                self.pump(min(wait, 0.05))
+                self._pump_and_serve(min(wait, 0.05))  # the router passes frames on between ticks too
             self.pump(0.0)
             self.tick()
             next_tick += self.config.dt_s
