@@ -54,6 +54,11 @@ def _parser() -> argparse.ArgumentParser:
         choices=["mavlink", "direct"],
         help="vehicle link (physics): MAVLink bytes through firmware_bridge, or readings handed over directly",
     )
+    run.add_argument(
+        "--animate",
+        action="store_true",
+        help="also write an animation of the run (animation.mp4 with ffmpeg, else animation.gif)",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--force", action="store_true", help=FORCE_HELP)
     fleet = sub.add_parser(
@@ -191,6 +196,18 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
         return 130
+    if args.animate:
+        from sitl.animate import write_animation
+
+        try:
+            with _sigterm_interrupts():
+                movie = write_animation(result.fleet, result.recorder, out)
+        except (OSError, ValueError) as error:
+            return _fail(f"the run's outputs are in {out}/, but the animation could not be written: {error}")
+        except KeyboardInterrupt:
+            print(f"bob-sitl: interrupted; the run's outputs are in {out}/, without the animation", file=sys.stderr)
+            return 130
+        print(f"animation: {movie}", file=sys.stderr)
     summary = {k: v for k, v in result.metrics.items() if not isinstance(v, dict) or k == "criteria"}
     print(json.dumps(summary, indent=2))
     print(f"outputs in {out}/", file=sys.stderr)
