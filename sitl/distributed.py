@@ -127,6 +127,7 @@ def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
             threads_per_worker=1,
             host=LOCAL_HOST,
             dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": f"{LOCAL_HOST}:0"},  # its HTTP server: loopback, any free port
             silence_logs=logging.ERROR,
         )
     except (OSError, TimeoutError, RuntimeError) as error:
