@@ -125,6 +125,7 @@ def test_sigterm_puts_the_vehicle_at_neutral_within_half_a_second(tmp_path) -> N
         after = [(t - stopped_at, ch) for t, ch in sitl.seen.rc if t > stopped_at]
         neutral = [t for t, ch in after if all(abs(c - 1500) <= 30 for c in ch[:4])]
         assert neutral and neutral[0] < 0.5, after[:10]
+        print(f"every RC channel at trim {neutral[0]:.2f} s after SIGTERM")
 
 
 def test_a_buoy_on_a_motorboat_is_refused_with_what_to_change(tmp_path) -> None:
