@@ -44,7 +44,8 @@ The MPC (every call; the QP is built once, casadi SX):
   * cost: heading_weight * sum (delta_k - e0)^2 (0 when holding) +
     speed_weight * sum ((u_k - U) / top speed)^2 + steering_weight * sum s_k^2 +
     throttle / steering change weights * sum (input_k - input_{k-1})^2;
-  * constraints: throttle in [min_throttle, the available fraction], steering
+  * constraints: throttle in [min_throttle, the available fraction and the
+    throttle that holds 1.5 U + 0.2 m/s (MotorboatModel.throttle_cap)], steering
     in [-1, 1], steering change per step at most steering_slew_per_s * step_s;
   * solver: the cheapest casadi conic plugin (DAQP, see bob_autonomy.mpc).
   * failure: a solver failure, a non-finite plan or a solve over
@@ -74,6 +75,10 @@ from bob_autonomy.simple_estimator import FloatArray
 logger = logging.getLogger("bob_autonomy.motorboat_control")
 NOMINAL_TOP_SPEED_MPS = 2.0
 MIN_TURN_SPEED_MPS = 0.1  # the speed the yaw model is linearised at, at least (steering turns a boat under way)
+# Below this wished speed through the water a boat holds (drifts). Absolute, not a fraction of the top speed: the
+# behaviours wish speeds of about 1 m/s whatever the boat (ArduPilot's SITL motorboat goes 10 m/s and more).
+HOLD_SPEED_MPS = 0.1
+SPEED_CAP_FACTOR, SPEED_CAP_MARGIN_MPS = 1.5, 0.2  # MotorboatModel.throttle_cap
 
 
 @dataclass(frozen=True)
@@ -106,7 +111,10 @@ class MotorboatModel:
     @classmethod
     def for_top_speed(cls, top_speed_mps: float, turning_radius_m: float | None = None) -> MotorboatModel:
         """The nominal boat with its drag rescaled to reach `top_speed_mps` at full throttle (the split between
-        linear and quadratic drag at top speed kept, as BuoyModel.for_top_speed), and this turning radius (m)."""
+        linear and quadratic drag at top speed kept, as BuoyModel.for_top_speed), and this turning radius (m).
+        Its mass is scaled by nominal top speed / top speed, so that full throttle takes it to its top speed in
+        the same time whatever that speed (1.6 s to 63 %): the autopilot tells a top speed, never a mass, and a
+        fast boat is not a slow boat with a heavier hull (ArduPilot's SITL motorboat: 2 kg, 10 m/s)."""
         v = float(top_speed_mps)
         if not (math.isfinite(v) and 0.1 <= v <= 50.0):
             raise ValueError(f"top speed must be 0.1..50 m/s, got {top_speed_mps!r}")
@@ -114,7 +122,7 @@ class MotorboatModel:
         scale = NOMINAL_TOP_SPEED_MPS / v
         radius = base.turning_radius_m if turning_radius_m is None else float(turning_radius_m)
         return cls(
-            mass_kg=base.mass_kg,
+            mass_kg=base.mass_kg * scale,
             linear_drag_n_per_mps=base.linear_drag_n_per_mps * scale,
             quadratic_drag_n_per_mps2=base.quadratic_drag_n_per_mps2 * scale**2,
             max_thrust_n=base.max_thrust_n,
@@ -126,6 +134,13 @@ class MotorboatModel:
     def drag_n(self, speed_mps: float) -> float:
         """Surge drag at this speed through the water, N (signed)."""
         return (self.linear_drag_n_per_mps + self.quadratic_drag_n_per_mps2 * abs(speed_mps)) * speed_mps
+
+    def throttle_cap(self, speed_ref_mps: float) -> float:
+        """The throttle that holds SPEED_CAP_FACTOR * speed_ref + SPEED_CAP_MARGIN_MPS in steady state (at most 1):
+        the most the controllers give for this speed reference. It leaves room to accelerate and bounds what a
+        model error can do (a boat far lighter than the model would otherwise run away in a turn)."""
+        cap = self.drag_n(SPEED_CAP_FACTOR * max(speed_ref_mps, 0.0) + SPEED_CAP_MARGIN_MPS) / self.max_thrust_n
+        return min(1.0, cap)
 
     @property
     def top_speed_mps(self) -> float:
@@ -225,7 +240,7 @@ class MotorboatController:
         self.model = model
         self.heading_gain_per_s, self.yaw_damping = heading_gain_per_s, yaw_damping
         self.speed_gain_per_s, self.min_throttle = speed_gain_per_s, min_throttle
-        hold = 0.05 * model.top_speed_mps if hold_speed_mps is None else hold_speed_mps
+        hold = HOLD_SPEED_MPS if hold_speed_mps is None else hold_speed_mps
         self.references = References(model, hold, turn_speed_fraction)
 
     def law(self, error: float, reference: float, surge: float, yaw_rate: float, limit: float) -> tuple[float, float]:
@@ -233,6 +248,7 @@ class MotorboatController:
         throttle limit."""
         m = self.model
         force = m.drag_n(reference) + m.mass_kg * self.speed_gain_per_s * (reference - surge)
+        limit = min(limit, m.throttle_cap(reference))
         throttle = min(max(force / m.max_thrust_n, self.min_throttle), limit) if reference > 0 else 0.0
         wished = self.heading_gain_per_s * error
         steering = -(m.turning_radius_m / max(surge, 0.2)) * (wished + self.yaw_damping * (wished - yaw_rate))
@@ -264,7 +280,7 @@ class MotorboatMpc:
     model: the nominal MotorboatModel. step_s, horizon: the prediction's step (s) and length (steps).
     heading_weight (per rad^2), speed_weight (per (speed / top speed)^2), steering_weight, throttle_change_weight,
     steering_change_weight: cost weights per step. hold_speed_mps: below this wished speed through the water the
-    boat holds (default 5 % of the model's top speed); turn_speed_fraction: the least speed while turning, as a
+    boat holds (default HOLD_SPEED_MPS, 0.1 m/s); turn_speed_fraction: the least speed while turning, as a
     fraction of top speed. min_throttle: the lowest throttle (0: never astern). solver: casadi conic plugin.
     time_budget_s: a solve slower than this is discarded for the fallback, s.
 
@@ -378,6 +394,7 @@ class MotorboatMpc:
             self._previous = (0.0, self._slewed(0.0))
             self.last_plan = None
             return MotorboatCommand(0.0, self._previous[1], True, False, 0.0, "hold")
+        limit = min(limit, self.model.throttle_cap(reference))
         self.solves += 1
         ok, fallback, status = True, False, "optimal"
         if self.last_plan is None:  # no plan to linearise about: the speed now, steering straight

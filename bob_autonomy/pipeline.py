@@ -29,7 +29,7 @@ from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, Imu
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 logger = logging.getLogger(__name__)
-YAW_ACCEL_PSD = 0.5**2  # rad^2/s^3: the motorboat EKF's yaw-rate random walk
+YAW_ACCEL_PSD = 2.0**2  # rad^2/s^3: the motorboat EKF's yaw-rate random walk (the gyro pins the rate)
 ESTIMATORS = ("simple", "ekf")
 CONTROLLERS = ("simple", "mpc")
 
@@ -293,9 +293,13 @@ def _update_compass(estimator, reading: CompassReading, timed: bool) -> None:
 class MotorboatPipeline(BuoyPipeline):
     """Estimator (alpha-beta or EKF) and steering + throttle control (proportional or MPC) of n motorboats.
 
-    A motorboat is estimated as a buoy is (GPS, compass, IMU; the EKF's drift state is the water's), with the
+    A motorboat is estimated as a buoy is (GPS, compass, gyro; the EKF's drift state is the water's), with the
     surge model of its MotorboatModel as the EKF's drag model (the thrust acts along the keel; the EKF's drag
     balance is isotropic, so its sigma is widened to `drag_balance_sigma_mps2` for the sway it does not know).
+    use_accelerometer: False (default): the EKF predicts with that model and the thrust, not the accelerometer. A
+    hull that pitches and rolls in waves puts gravity into a planar accelerometer (0.17 m/s^2 per degree;
+    ArduPilot's SITL motorboat has waves on, Tools/autotest/default_params/motorboat.parm SIM_WAVE_ENABLE 1),
+    which the buoy EKF would integrate into metres-per-second velocity errors; GPS velocity at 10 Hz does better.
     The controller is `bob_autonomy.motorboat_control`. Commands are (throttle, steering) per boat, each in
     [-1, 1], as `AutopilotSession.override` sends them. `thrust()` returns these commands too, so that the vessel
     loop drives every pipeline that estimates like a buoy alike.
@@ -316,6 +320,7 @@ class MotorboatPipeline(BuoyPipeline):
         dt_s: float = 0.1,
         mpc_time_budget_s: float = 0.02,
         drag_balance_sigma_mps2: float = 0.3,
+        use_accelerometer: bool = False,
     ) -> None:
         _check_choice("controller", controller, CONTROLLERS)
         each = [models or MotorboatModel()] * n if not isinstance(models, Sequence) else list(models)
@@ -326,6 +331,7 @@ class MotorboatPipeline(BuoyPipeline):
         drag = (first.linear_drag_n_per_mps, first.quadratic_drag_n_per_mps2)
         surge = BuoyModel(first.mass_kg, *drag, first.max_thrust_n)
         self.drag_balance_sigma_mps2 = drag_balance_sigma_mps2
+        self.use_accelerometer = use_accelerometer
         super().__init__(n, frame, np.ones(n), estimator=estimator, controller="simple", dt_s=dt_s, model=surge)
         self.use_mpc = controller == "mpc"
         self.max_throttle = np.broadcast_to(np.asarray(max_throttle, dtype=float), (n,)).copy()
@@ -364,12 +370,29 @@ class MotorboatPipeline(BuoyPipeline):
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
         if not self.use_ekf:
             return AlphaBetaBuoyEstimator(self.n)
-        # A motorboat's yaw rate changes within a fraction of a second when it steers (a buoy's hardly at all):
-        # a yaw-rate random walk of 0.5^2 rad^2/s^3 lets the gyro and compass follow it instead of being gated.
+        # A motorboat's yaw rate changes within a fraction of a second when it steers (a buoy's hardly at all;
+        # ArduPilot's SITL motorboat turns at once, up to speed / 0.9 m): a yaw-rate random walk of
+        # YAW_ACCEL_PSD lets the gyro and compass follow it instead of being gated.
         params = BuoyEkfParams(
             model=self.model, drag_balance_sigma_mps2=self.drag_balance_sigma_mps2, yaw_accel_psd=YAW_ACCEL_PSD
         )
         return BuoyEkfBank(self.n, params=params)
+
+    def feed(self, readings: SensorReadings | Iterable[object]) -> None:
+        """Fuse readings as a buoy does; without `use_accelerometer` an IMU reading predicts with the thrust model
+        (no accelerometer) and gives its gyro."""
+        if self.use_accelerometer or not self.use_ekf:
+            super().feed(readings)
+            return
+        rest = []
+        for reading in _flatten(readings):
+            if isinstance(reading, ImuReading):
+                a = reading.agents
+                self.estimator.predict(a, reading.t_s, None, self.thrust_world_n[a])
+                self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
+            else:
+                rest.append(reading)
+        super().feed(rest)
 
     def yaw_rate(self, t_s: float) -> FloatArray:
         """(n,) yaw rate, rad/s: the EKF's, or the filtered heading differences of the simple estimator."""

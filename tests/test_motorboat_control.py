@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bob_autonomy.motorboat_control import MotorboatController, MotorboatModel, MotorboatMpc
+from bob_autonomy.motorboat_control import HOLD_SPEED_MPS, MotorboatController, MotorboatModel, MotorboatMpc
 from sitl.motorboat import MotorboatDynamics, params_for
 
 TOP_SPEED, RADIUS = 2.0, 3.0
@@ -40,15 +40,17 @@ def test_the_mpc_reaches_goals_in_four_directions_and_holds_near_them_against_a_
     distance = np.hypot(*(track - goal).T)
     arrived = np.flatnonzero(distance < 5.0)
     assert arrived.size and arrived[0] * 0.2 < 70.0  # 50 m at up to 1 m/s, a turn-around included
-    # Held: a boat that cannot stop in place stays within 2 turning radii of the goal for the last 15 s.
-    assert distance[-75:].max() < 2 * RADIUS
+    # Held: a boat that cannot stop in place either points into the current and holds (within 1 m), or overshoots
+    # and turns around on a circle of its turning radius R (up to 2 R away, plus what the current carries it
+    # during the turn): within 2.5 R of the goal for the last 15 s.
+    assert distance[-75:].max() < 2.5 * RADIUS
     assert mpc.fallbacks == 0 and all(c.ok for c in commands)
     assert all(0.0 <= c.throttle <= 1.0 and -1.0 <= c.steering <= 1.0 for c in commands)
 
 
 def test_the_simple_controller_also_gets_there() -> None:
     track, _ = _drive(MotorboatController(MODEL), (-50.0, 0.0), seconds=120.0)
-    assert np.hypot(*(track[-50:] - (-50.0, 0.0)).T).max() < 2 * RADIUS
+    assert np.hypot(*(track[-50:] - (-50.0, 0.0)).T).max() < 2.5 * RADIUS
 
 
 def test_a_wish_to_the_left_steers_left_and_a_wish_behind_turns_at_steerage_speed() -> None:
@@ -72,7 +74,7 @@ def test_the_drift_is_a_known_disturbance_pointing_into_it_holds_ground() -> Non
 
 def test_a_small_wish_holds_with_hysteresis_and_a_weak_battery_limits_the_throttle() -> None:
     mpc = MotorboatMpc(MODEL)
-    hold = 0.05 * MODEL.top_speed_mps
+    hold = HOLD_SPEED_MPS
     assert mpc.solve(np.array([0.8 * hold, 0.0]), np.zeros(2), np.zeros(2), 0.0).status == "hold"
     assert mpc.solve(np.array([1.2 * hold, 0.0]), np.zeros(2), np.zeros(2), 0.0).status == "hold"  # 1.5x to leave
     assert mpc.solve(np.array([1.6 * hold, 0.0]), np.zeros(2), np.zeros(2), 0.0).status == "optimal"

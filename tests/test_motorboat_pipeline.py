@@ -46,7 +46,9 @@ def test_estimated_and_controlled_boats_reach_their_goals_and_stay_near(estimato
     assert (distances[-75:] < 8.0).all()  # within a turning circle plus GPS error of each goal for the last 15 s
     assert pipeline.mpc_fallbacks == 0
     if estimator == "ekf":
-        assert np.hypot(*(pipeline.drift() - (0.1, 0.05)).T).max() < 0.1  # the current, as a known disturbance
+        # The current, as a known disturbance: within 0.2 m/s (without the accelerometer, drift is seen only
+        # through the thrust model, whose isotropic drag knows nothing of the sway in turns).
+        assert np.hypot(*(pipeline.drift() - (0.1, 0.05)).T).max() < 0.2
 
 
 def test_idle_boats_get_neutral_and_a_weak_battery_a_lower_throttle() -> None:
