@@ -19,8 +19,12 @@ estimator's, a known disturbance): the boat must point along d and move at |d|.
     +-150 deg the side of the last turn is kept (no dithering behind the stern);
   * speed through the water U = |d| cos(e0) when facing d, but never less than
     min(|d|, turn_speed) (turn_speed = `turn_speed_fraction` of the model's top
-    speed) while turning: a turn needs way on, so a boat whose wish is behind it
-    turns around in a circle of about its turning radius rather than stopping;
+    speed) while turning: a turn needs way on, so a boat whose wish is well
+    behind it and fast turns around in a circle of about its turning radius;
+  * astern: a wish behind the boat (more than 110 deg off the bow) no faster
+    than `reverse_speed_mps` (0.5 m/s) is met going astern, the stern pointing
+    along d (e0 measured from the stern, U = -|d| cos(e0)): a boat backs away
+    from what is in front of it rather than circling through its neighbours;
   * hold: when |d| is under `hold_speed_mps` (with hysteresis to 1.5 times that)
     the boat has nothing useful to do: throttle 0, steering 0, it drifts. This
     is how a motorboat "holds" a spot: it drifts near it, or orbits it when the
@@ -30,30 +34,34 @@ estimator's, a known disturbance): the boat must point along d and move at |d|.
 The MPC (every call; the QP is built once, casadi SX):
   * state: u, speed through the water along the keel (m/s); r, yaw rate (rad/s);
     delta, heading change since now (rad). Inputs held over each step of
-    `step_s` (default 0.5 s, horizon 12: 6 s): throttle tau_k, steering s_k.
+    `step_s` (default 0.5 s, horizon 12: 6 s): thrust fraction tau_k (the
+    throttle, astern scaled by the model's reverse_thrust_fraction), steering s_k.
   * speed: m du/dt = T tau - (c1 + c2 |u|) u, the drag linearised (Jacobian)
     at each step's speed in the previous plan (u0 on the first call or after a
     hold) and discretised exactly (zero-order hold), as BuoyMpc does at u0;
   * yaw: the steady yaw rate at steering s and speed u is -s u / R (R the
-    turning radius at full steering); it is bilinear, so it is linearised about
-    the previous plan's speeds and steering (u_bar_k, s_bar_k) (first-order
-    Taylor: s u ~ s_bar u + s u_bar - s_bar u_bar; u_bar at least 0.1 m/s so
-    the first plan from rest sees that steering turns); the yaw rate follows it
+    turning radius at full steering); it is bilinear, so u is taken from the
+    previous plan's speeds u_bar_k (the nonlinear surge model run on its
+    throttles): -s u_bar_k / R, a time-varying linear model. u_bar_k is at least
+    0.1 m/s in the direction the reference goes (ahead, or astern, where the
+    steering turns the other way), so a boat at rest, or pushed backwards by a
+    current while it means to go ahead, still sees that steering turns it (an
+    outboard turns it by its thrust); the yaw rate follows it
     with a first-order lag `yaw_time_constant_s`; delta integrates r
     (trapezoid). The heading dynamics know the turning limit: |yaw rate| <= u / R;
-  * cost: heading_weight * sum (delta_k - e0)^2 (0 when holding) +
+  * cost: heading_weight * sum (delta_k - e0)^2 +
     speed_weight * sum ((u_k - U) / top speed)^2 + steering_weight * sum s_k^2 +
     throttle / steering change weights * sum (input_k - input_{k-1})^2;
-  * constraints: throttle in [min_throttle, the available fraction and the
-    throttle that holds 1.5 U + 0.2 m/s (MotorboatModel.throttle_cap)], steering
+  * constraints: thrust fraction within the available throttle (astern: times
+    reverse_thrust_fraction; none with min_throttle 0) and within what holds
+    1.5 |U| + 0.2 m/s either way (MotorboatModel.throttle_cap), steering
     in [-1, 1], steering change per step at most steering_slew_per_s * step_s;
   * solver: the cheapest casadi conic plugin (DAQP, see bob_autonomy.mpc).
   * failure: a solver failure, a non-finite plan or a solve over
     `time_budget_s` falls back to `MotorboatController`, counted in `fallbacks`
     and logged on "bob_autonomy.motorboat_control".
-Not modelled: the sway (the hull skids outwards in a turn), reverse (throttle
->= 0 by default: a motorboat stops by its drag), the windage on the hull (the
-drift estimate carries it).
+Not modelled: the sway (the hull skids outwards in a turn), the windage on the
+hull (the drift estimate carries it).
 
 Frames: x east, y north; headings rad from east, counter-clockwise.
 """
@@ -78,6 +86,7 @@ MIN_TURN_SPEED_MPS = 0.1  # the speed the yaw model is linearised at, at least (
 # Below this wished speed through the water a boat holds (drifts). Absolute, not a fraction of the top speed: the
 # behaviours wish speeds of about 1 m/s whatever the boat (ArduPilot's SITL motorboat goes 10 m/s and more).
 HOLD_SPEED_MPS = 0.1
+REVERSE_SPEED_MPS = 0.5  # a wish behind the boat up to this speed through the water is met astern
 SPEED_CAP_FACTOR, SPEED_CAP_MARGIN_MPS = 1.5, 0.2  # MotorboatModel.throttle_cap
 
 
@@ -88,7 +97,9 @@ class MotorboatModel:
     mass_kg: surge mass with added mass, kg. linear_drag_n_per_mps, quadratic_drag_n_per_mps2: surge drag (water
     and air together), N per m/s and per (m/s)^2. max_thrust_n: full thrust ahead, N (top speed 2 m/s with these).
     turning_radius_m: turning radius at full steering, m. yaw_time_constant_s: how fast the yaw rate follows the
-    steering, s. steering_slew_per_s: fastest steering change, full-scale units per s.
+    steering, s. steering_slew_per_s: fastest steering change, full-scale units per s. reverse_thrust_fraction:
+    thrust astern at full reverse throttle as a fraction of max_thrust_n (a propeller pushes less astern; the
+    autopilot does not say: 0.5 is a cautious guess, ArduPilot's SITL motorboat has 1).
     """
 
     mass_kg: float = 33.0
@@ -98,8 +109,11 @@ class MotorboatModel:
     turning_radius_m: float = 3.0
     yaw_time_constant_s: float = 0.3
     steering_slew_per_s: float = 2.0
+    reverse_thrust_fraction: float = 0.5
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.reverse_thrust_fraction <= 1.0:
+            raise ValueError("reverse_thrust_fraction must be in [0, 1]")
         values = (self.mass_kg, self.max_thrust_n, self.turning_radius_m, self.yaw_time_constant_s)
         if min(values) <= 0.0 or self.steering_slew_per_s <= 0.0 or not all(map(math.isfinite, values)):
             raise ValueError("mass, max thrust, turning radius, yaw time constant and steering slew must be > 0")
@@ -129,17 +143,28 @@ class MotorboatModel:
             turning_radius_m=radius,
             yaw_time_constant_s=base.yaw_time_constant_s,
             steering_slew_per_s=base.steering_slew_per_s,
+            reverse_thrust_fraction=base.reverse_thrust_fraction,
         )
+
+    def throttle_of(self, fraction: float) -> float:
+        """The throttle that gives this fraction of max_thrust_n (negative: astern, at reverse_thrust_fraction)."""
+        if fraction >= 0.0:
+            return fraction
+        return fraction / self.reverse_thrust_fraction if self.reverse_thrust_fraction > 0 else 0.0
+
+    def fraction_of(self, throttle: float) -> float:
+        """The fraction of max_thrust_n this throttle gives (the inverse of `throttle_of`)."""
+        return throttle if throttle >= 0.0 else throttle * self.reverse_thrust_fraction
 
     def drag_n(self, speed_mps: float) -> float:
         """Surge drag at this speed through the water, N (signed)."""
         return (self.linear_drag_n_per_mps + self.quadratic_drag_n_per_mps2 * abs(speed_mps)) * speed_mps
 
     def throttle_cap(self, speed_ref_mps: float) -> float:
-        """The throttle that holds SPEED_CAP_FACTOR * speed_ref + SPEED_CAP_MARGIN_MPS in steady state (at most 1):
+        """The thrust fraction that holds SPEED_CAP_FACTOR * |speed_ref| + SPEED_CAP_MARGIN_MPS steadily (at most 1):
         the most the controllers give for this speed reference. It leaves room to accelerate and bounds what a
         model error can do (a boat far lighter than the model would otherwise run away in a turn)."""
-        cap = self.drag_n(SPEED_CAP_FACTOR * max(speed_ref_mps, 0.0) + SPEED_CAP_MARGIN_MPS) / self.max_thrust_n
+        cap = self.drag_n(SPEED_CAP_FACTOR * abs(speed_ref_mps) + SPEED_CAP_MARGIN_MPS) / self.max_thrust_n
         return min(1.0, cap)
 
     @property
@@ -182,30 +207,46 @@ def _pair(value: object) -> tuple[float, float]:
 
 class References:
     """Heading error and speed references from the wish, the drift and the pose (module docstring), with the
-    hysteresis state of one boat (hold, side of the last big turn)."""
+    hysteresis state of one boat (hold, astern, side of the last big turn).
 
-    def __init__(self, model: MotorboatModel, hold_speed_mps: float, turn_speed_fraction: float) -> None:
+    reverse_speed_mps: a wish through the water behind the boat (more than 110 deg off its bow) and no faster
+    than this is met going astern, stern first (0: never); astern it stays while the wish is more than 70 deg
+    off the bow and no faster than 1.5 times this. In a crowd this backs a boat away from the neighbour in
+    front instead of sending it round a circle through the others.
+    """
+
+    def __init__(
+        self, model: MotorboatModel, hold_speed_mps: float, turn_speed_fraction: float, reverse_speed_mps: float
+    ) -> None:
         self.model = model
         self.hold_speed_mps = float(hold_speed_mps)
         self.turn_speed_mps = float(turn_speed_fraction) * model.top_speed_mps
-        self.holding = True
-        self.turn_side = 0.0
+        self.reverse_speed_mps = float(reverse_speed_mps)
+        self.holding, self.astern, self.turn_side = True, False, 0.0
 
     def reset(self) -> None:
-        self.holding, self.turn_side = True, 0.0
+        self.holding, self.astern, self.turn_side = True, False, 0.0
 
     def __call__(
         self, desired: tuple[float, float], water: tuple[float, float], heading: float
     ) -> tuple[float, float, bool]:
-        """(heading error e0 rad, speed reference U m/s, holding)."""
+        """(heading error e0 rad, speed reference U m/s (negative: astern), holding)."""
         dx, dy = desired[0] - water[0], desired[1] - water[1]
         speed = math.hypot(dx, dy)
         threshold = self.hold_speed_mps * (1.5 if self.holding else 1.0)
         self.holding = speed < threshold
         if self.holding:
-            self.turn_side = 0.0
+            self.turn_side, self.astern = 0.0, False
             return 0.0, 0.0, True
         error = math.remainder(math.atan2(dy, dx) - heading, 2.0 * math.pi)
+        if self.astern:
+            self.astern = speed <= 1.5 * self.reverse_speed_mps and abs(error) > math.radians(70.0)
+        else:
+            self.astern = speed <= self.reverse_speed_mps and abs(error) > math.radians(110.0)
+        if self.astern:  # the stern points along the wish
+            self.turn_side = 0.0
+            stern = math.remainder(error - math.pi, 2.0 * math.pi)
+            return stern, -speed * max(math.cos(stern), 0.0), False
         if abs(error) > math.radians(150.0) and self.turn_side != 0.0 and math.copysign(1.0, error) != self.turn_side:
             error += 2.0 * math.pi * self.turn_side  # keep turning the way we were
         if abs(error) > math.radians(30.0):
@@ -222,8 +263,9 @@ class MotorboatController:
 
     A yaw-rate loop: the wished yaw rate is r_d = heading_gain_per_s * e0, and steering = -(R / u') (r_d +
     yaw_damping * (r_d - r)) (clipped), u' = max(u, 0.2 m/s): the steering that gives r_d at speed u (r = -s u /
-    R), plus a correction on the yaw rate measured. Throttle = drag feed-forward at the speed reference + mass *
-    speed_gain_per_s * (U - u) over full thrust (clipped to [min_throttle, available]).
+    R; u' = -max(|u|, 0.2) astern), plus a correction on the yaw rate measured. Thrust = drag feed-forward at the
+    speed reference + mass * speed_gain_per_s * (U - u), as a fraction of full thrust clipped to `fraction_bounds`
+    (astern only if min_throttle < 0), then turned into a throttle (reverse is weaker: MotorboatModel.throttle_of).
     """
 
     def __init__(
@@ -235,23 +277,35 @@ class MotorboatController:
         speed_gain_per_s: float = 1.0,
         hold_speed_mps: float | None = None,
         turn_speed_fraction: float = 0.25,
-        min_throttle: float = 0.0,
+        min_throttle: float = -1.0,
+        reverse_speed_mps: float = REVERSE_SPEED_MPS,
     ) -> None:
+        if not -1.0 <= min_throttle <= 0.0:
+            raise ValueError(f"min_throttle must be in [-1, 0], got {min_throttle!r}")
         self.model = model
         self.heading_gain_per_s, self.yaw_damping = heading_gain_per_s, yaw_damping
         self.speed_gain_per_s, self.min_throttle = speed_gain_per_s, min_throttle
         hold = HOLD_SPEED_MPS if hold_speed_mps is None else hold_speed_mps
-        self.references = References(model, hold, turn_speed_fraction)
+        self.references = References(model, hold, turn_speed_fraction, reverse_speed_mps if min_throttle < 0 else 0.0)
+
+    def fraction_bounds(self, reference: float, limit: float) -> tuple[float, float]:
+        """(lowest, highest) thrust fraction for this speed reference and throttle limit: at most what holds
+        1.5 |U| + 0.2 m/s (MotorboatModel.throttle_cap) either way, astern only if min_throttle < 0."""
+        m = self.model
+        cap = m.throttle_cap(reference)
+        low = -min(-self.min_throttle * m.reverse_thrust_fraction * limit, cap)
+        return low, min(limit, cap)
 
     def law(self, error: float, reference: float, surge: float, yaw_rate: float, limit: float) -> tuple[float, float]:
         """(throttle, steering) for heading error `error` rad, speed reference and surge m/s, yaw rate rad/s and
         throttle limit."""
         m = self.model
         force = m.drag_n(reference) + m.mass_kg * self.speed_gain_per_s * (reference - surge)
-        limit = min(limit, m.throttle_cap(reference))
-        throttle = min(max(force / m.max_thrust_n, self.min_throttle), limit) if reference > 0 else 0.0
+        low, high = self.fraction_bounds(reference, limit)
+        throttle = m.throttle_of(min(max(force / m.max_thrust_n, low), high)) if reference != 0 else 0.0
         wished = self.heading_gain_per_s * error
-        steering = -(m.turning_radius_m / max(surge, 0.2)) * (wished + self.yaw_damping * (wished - yaw_rate))
+        way = max(abs(surge), 0.2) if reference >= 0 else -max(abs(surge), 0.2)
+        steering = -(m.turning_radius_m / way) * (wished + self.yaw_damping * (wished - yaw_rate))
         return throttle, min(max(steering, -1.0), 1.0)
 
     def command(
@@ -281,7 +335,8 @@ class MotorboatMpc:
     heading_weight (per rad^2), speed_weight (per (speed / top speed)^2), steering_weight, throttle_change_weight,
     steering_change_weight: cost weights per step. hold_speed_mps: below this wished speed through the water the
     boat holds (default HOLD_SPEED_MPS, 0.1 m/s); turn_speed_fraction: the least speed while turning, as a
-    fraction of top speed. min_throttle: the lowest throttle (0: never astern). solver: casadi conic plugin.
+    fraction of top speed. min_throttle: the lowest throttle (-1, the default: full astern; 0: never astern).
+    reverse_speed_mps: see References. solver: casadi conic plugin.
     time_budget_s: a solve slower than this is discarded for the fallback, s.
 
     Attributes: solves, fallbacks (counts), last_plan ((horizon, 2) throttle and steering of the last QP, or None).
@@ -299,12 +354,13 @@ class MotorboatMpc:
         steering_change_weight: float = 0.05,
         hold_speed_mps: float | None = None,
         turn_speed_fraction: float = 0.25,
-        min_throttle: float = 0.0,
+        min_throttle: float = -1.0,
+        reverse_speed_mps: float = REVERSE_SPEED_MPS,
         solver: str | None = None,
         time_budget_s: float = 0.02,
     ) -> None:
-        if step_s <= 0.0 or horizon < 2 or not -1.0 <= min_throttle < 1.0:
-            raise ValueError("need step_s > 0, horizon >= 2 and min_throttle in [-1, 1)")
+        if step_s <= 0.0 or horizon < 2:
+            raise ValueError("need step_s > 0 and horizon >= 2")
         positive = (heading_weight, speed_weight, throttle_change_weight, steering_change_weight)
         if min(positive) <= 0 or steering_weight < 0:
             raise ValueError("need heading, speed and change weights > 0 and steering_weight >= 0")
@@ -314,15 +370,15 @@ class MotorboatMpc:
         self.solver = solver or default_qp_plugin()
         self.time_budget_s = float(time_budget_s)
         self.fallback = MotorboatController(
-            model, hold_speed_mps=hold_speed_mps, turn_speed_fraction=turn_speed_fraction, min_throttle=min_throttle
-        )
+            model, hold_speed_mps=hold_speed_mps, turn_speed_fraction=turn_speed_fraction, min_throttle=min_throttle,
+            reverse_speed_mps=reverse_speed_mps,
+        )  # fmt: skip
         self.references = self.fallback.references
         self.solves = 0
         self.fallbacks = 0
         self.last_plan: FloatArray | None = None
-        self._previous = (0.0, 0.0)  # (throttle, steering) last returned
-        self._bar = np.zeros((self.horizon, 2))  # the linearisation point (speed, steering) per step
-        self._bounds_limit = math.nan
+        self._previous = (0.0, 0.0)  # (thrust fraction, steering) last returned
+        self._bar = np.zeros(self.horizon)  # the linearisation point: the plan's speed through the water per step
         # The QP is formulated and its casadi Functions built once per boat model and tuning (cached: a fleet of
         # identical boats shares them); each controller has its own buffers.
         self.problem, data, conic, constraint_values, self._speeds = _qp_functions(
@@ -334,33 +390,31 @@ class MotorboatMpc:
         step = self.model.steering_slew_per_s * self.step_s
         self._qp.inputs["lba"][:] = -step
         self._qp.inputs["uba"][:] = step
-        self._solve_qp(0.0, 0.0, 0.5, 1.0, 1.0, 1.0)  # warm-up: the first real call is not the slow one
+        self._solve_qp(0.0, 0.0, 0.5, 1.0, (-0.5, 1.0))  # warm-up: the first real call is not the slow one
         self.reset()
 
     def reset(self) -> None:
         """Forget the previous command and plan (the boat is idle)."""
         self._previous = (0.0, 0.0)
-        self._bar = np.zeros((self.horizon, 2))
+        self._bar = np.zeros(self.horizon)
         self.last_plan = None
         self.references.reset()
 
     # ------------------------------------------------------------------ solving
 
     def _solve_qp(
-        self, u0: float, r0: float, target: float, reference: float, heading_on: float, limit: float
+        self, u0: float, r0: float, target: float, reference: float, bounds: tuple[float, float]
     ) -> FloatArray:
-        """(horizon, 2) plan of (throttle, steering); raises on a solver failure."""
+        """(horizon, 2) plan of (thrust fraction, steering); raises on a solver failure."""
         n = self.horizon
         data, qp, out = self._data.inputs["p"], self._qp.inputs, self._qp.outputs
-        data[:7] = (u0, r0, target, reference, heading_on, *self._previous)
-        data[7 : 7 + n] = self._bar[:, 0]
-        data[7 + n :] = self._bar[:, 1]
+        direction = -1.0 if reference < 0 else 1.0
+        data[:7] = (u0, r0, target, reference, direction, *self._previous)
+        data[7 : 7 + n] = self._bar
         self._data()
         lbx, ubx = qp["lbx"], qp["ubx"]
-        if limit != self._bounds_limit:
-            lbx[:n], ubx[:n] = min(self.min_throttle, limit), limit
-            lbx[n:], ubx[n:] = -1.0, 1.0
-            self._bounds_limit = limit
+        lbx[:n], ubx[:n] = bounds
+        lbx[n:], ubx[n:] = -1.0, 1.0
         step = self.model.steering_slew_per_s * self.step_s
         lbx[n], ubx[n] = max(-1.0, self._previous[1] - step), min(1.0, self._previous[1] + step)
         self._qp()
@@ -394,23 +448,22 @@ class MotorboatMpc:
             self._previous = (0.0, self._slewed(0.0))
             self.last_plan = None
             return MotorboatCommand(0.0, self._previous[1], True, False, 0.0, "hold")
-        limit = min(limit, self.model.throttle_cap(reference))
+        bounds = self.fallback.fraction_bounds(reference, limit)
         self.solves += 1
         ok, fallback, status = True, False, "optimal"
         if self.last_plan is None:  # no plan to linearise about: the speed now, steering straight
-            self._bar[:] = (u0, 0.0)
+            self._bar[:] = u0
         start = time.perf_counter()
         try:
-            plan = self._solve_qp(u0, r0, error, reference, 1.0, limit)
+            plan = self._solve_qp(u0, r0, error, reference, bounds)
             elapsed = time.perf_counter() - start
             if not np.isfinite(plan).all():
                 raise _SolveError("non-finite solution")
             if elapsed > self.time_budget_s:
                 raise _SolveError(_over_budget(elapsed, self.time_budget_s))
-            throttle, steering = float(plan[0, 0]), float(plan[0, 1])
+            fraction, steering = float(plan[0, 0]), float(plan[0, 1])
             self.last_plan = plan
-            self._bar[:, 0] = np.asarray(self._speeds(plan[:, 0], u0), dtype=float).ravel()
-            self._bar[:, 1] = plan[:, 1]
+            self._bar[:] = np.asarray(self._speeds(plan[:, 0], u0), dtype=float).ravel()
         except Exception as error_:  # any failure of the solve: the boat still gets a command
             elapsed = time.perf_counter() - start
             ok, fallback = False, True
@@ -419,9 +472,11 @@ class MotorboatMpc:
             self.last_plan = None
             logger.warning("motorboat MPC fallback #%d: %s", self.fallbacks, status)
             throttle, steering = self.fallback.law(error, reference, u0, r0, limit)
-        throttle = min(max(throttle, min(self.min_throttle, limit)), limit)
+            fraction = self.model.fraction_of(throttle)
+        fraction = min(max(fraction, bounds[0]), bounds[1])
         steering = self._slewed(min(max(steering, -1.0), 1.0))
-        self._previous = (throttle, steering)
+        self._previous = (fraction, steering)
+        throttle = self.model.throttle_of(fraction)
         return MotorboatCommand(throttle, steering, ok, fallback, elapsed, status, error, reference)
 
     def _slewed(self, steering: float) -> float:
@@ -431,12 +486,14 @@ class MotorboatMpc:
 
 
 def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tuple[float, ...]) -> dict[str, ca.SX]:
-    """The QP in casadi SX: z (throttles, then steerings), p (module docstring), cost f, change rows g."""
+    """The QP in casadi SX: z (thrust fractions, then steerings); p = (u0 m/s, r0 rad/s, e0 rad, U m/s, direction
+    +-1, previous thrust fraction, previous steering, the plan's speeds u_bar (horizon,) m/s); cost f; the
+    steering-change rows g."""
     m, n, h = model, horizon, step_s
     w_heading, w_speed, w_steer, w_dthrottle, w_dsteer = weights
-    p = ca.SX.sym("p", 7 + 2 * n)
-    u0, r0, target, reference, heading_on, throttle_prev, steer_prev = (p[i] for i in range(7))
-    u_bar, s_bar = p[7 : 7 + n], p[7 + n : 7 + 2 * n]
+    p = ca.SX.sym("p", 7 + n)
+    u0, r0, target, reference, direction, throttle_prev, steer_prev = (p[i] for i in range(7))
+    u_bar = p[7 : 7 + n]
     z = ca.SX.sym("z", 2 * n)
     throttle, steer = z[:n], z[n:]
     c1, c2, mass = m.linear_drag_n_per_mps, m.quadratic_drag_n_per_mps2, m.mass_kg
@@ -446,8 +503,8 @@ def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tupl
     previous = (throttle_prev, steer_prev)
     for k in range(n):
         # Yaw rate the steering asks for at the speed of the step's start, linearised about the plan.
-        bar = ca.fmax(u_bar[k], MIN_TURN_SPEED_MPS)
-        r_steady = -(s_bar[k] * u + steer[k] * bar - s_bar[k] * bar) / m.turning_radius_m
+        bar = direction * ca.fmax(direction * u_bar[k], MIN_TURN_SPEED_MPS)
+        r_steady = -steer[k] * bar / m.turning_radius_m
         r_next = lag * r + (1.0 - lag) * r_steady
         delta = delta + 0.5 * h * (r + r_next)
         # Speed: drag linearised (Jacobian) at the plan's speed for this step, exact zero-order hold.
@@ -458,7 +515,7 @@ def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tupl
         b = ca.if_else(x < 1e-9, h / mass, (1.0 - a) / jac)
         u = a * u + b * (m.max_thrust_n * throttle[k] + c2 * u_bar[k] * speed)
         r = r_next
-        cost += w_heading * heading_on * (delta - target) ** 2 + w_speed * ((u - reference) / top) ** 2
+        cost += w_heading * (delta - target) ** 2 + w_speed * ((u - reference) / top) ** 2
         cost += w_steer * steer[k] ** 2
         cost += w_dthrottle * (throttle[k] - previous[0]) ** 2 + w_dsteer * (steer[k] - previous[1]) ** 2
         previous = (throttle[k], steer[k])

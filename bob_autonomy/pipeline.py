@@ -426,7 +426,7 @@ class MotorboatPipeline(BuoyPipeline):
             self.last_commands[k] = cmd
             out[k] = cmd.throttle, cmd.steering
         heading = np.nan_to_num(estimate.heading)
-        force = out[:, 0] * np.array([m.max_thrust_n for m in self.models])
+        force = np.array([m.fraction_of(t) * m.max_thrust_n for m, t in zip(self.models, out[:, 0], strict=True)])
         self.thrust_world_n = force[:, None] * np.column_stack((np.cos(heading), np.sin(heading)))
         return out
 

@@ -45,7 +45,7 @@ def test_the_mpc_reaches_goals_in_four_directions_and_holds_near_them_against_a_
     # during the turn): within 2.5 R of the goal for the last 15 s.
     assert distance[-75:].max() < 2.5 * RADIUS
     assert mpc.fallbacks == 0 and all(c.ok for c in commands)
-    assert all(0.0 <= c.throttle <= 1.0 and -1.0 <= c.steering <= 1.0 for c in commands)
+    assert all(-1.0 <= c.throttle <= 1.0 and -1.0 <= c.steering <= 1.0 for c in commands)
 
 
 def test_the_simple_controller_also_gets_there() -> None:
@@ -61,6 +61,22 @@ def test_a_wish_to_the_left_steers_left_and_a_wish_behind_turns_at_steerage_spee
     behind = mpc.solve(np.array([-1.0, 0.0]), np.zeros(2), np.zeros(2), 0.0)
     assert behind.throttle > 0.0 and abs(behind.steering) > 0.5
     assert behind.speed_ref_mps == pytest.approx(0.25 * MODEL.top_speed_mps)  # turns, never stops to think
+
+
+def test_a_slow_wish_behind_is_met_astern_and_astern_can_be_forbidden() -> None:
+    mpc = MotorboatMpc(MODEL)
+    back = mpc.solve(np.array([-0.3, 0.05]), np.zeros(2), np.zeros(2), 0.0)  # 0.3 m/s, 170 deg off the bow
+    assert back.speed_ref_mps < 0.0 and back.throttle < 0.0
+    # Astern the stern points along the wish: 10 deg to the left of the stern is e0 = -10 deg (turn the bow right)
+    assert back.heading_error_rad == pytest.approx(-math.radians(9.46), abs=1e-3)
+    for _ in range(5):
+        back = mpc.solve(np.array([-0.3, 0.05]), np.array([-0.3, 0.0]), np.zeros(2), 0.0)
+    assert back.steering < 0.0  # astern, the steering is reversed: left steering swings the bow right
+    # Fast or forbidden: it turns around instead.
+    assert MotorboatMpc(MODEL).solve(np.array([-1.0, 0.05]), np.zeros(2), np.zeros(2), 0.0).throttle > 0.0
+    forward_only = MotorboatMpc(MODEL, min_throttle=0.0)
+    assert forward_only.solve(np.array([-0.3, 0.05]), np.zeros(2), np.zeros(2), 0.0).throttle >= 0.0
+    assert MODEL.throttle_of(-0.25) == pytest.approx(-0.5) and MODEL.fraction_of(-0.5) == pytest.approx(-0.25)
 
 
 def test_the_drift_is_a_known_disturbance_pointing_into_it_holds_ground() -> None:
