@@ -27,7 +27,13 @@ def _run(boat: MotorboatDynamics, command, seconds: float, dt: float = 0.1, **kw
 
 @pytest.mark.parametrize(
     ("top_speed", "radius", "steering"),
-    [(2.0, 3.0, "outboard"), (2.0, 3.0, "rudder"), (9.0, 25.0, "outboard"), (3.0, 2.25, "outboard"), (1.0, 8.0, "rudder")],
+    [
+        (2.0, 3.0, "outboard"),
+        (2.0, 3.0, "rudder"),
+        (9.0, 25.0, "outboard"),
+        (3.0, 2.25, "outboard"),
+        (1.0, 8.0, "rudder"),
+    ],
 )
 def test_top_speed_and_turning_radius_are_what_the_scenario_gives(top_speed, radius, steering) -> None:
     boat = _boat(params_for(top_speed, radius, steering))
