@@ -7,6 +7,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from sitl.fleet import LockstepFleet
 from sitl.recorder import Recorder
+from sitl.station_metrics import time_averaged, wander_m
 from sitl.world import FloatArray, point_segment_offsets, points_in_polygon
 
 
@@ -50,8 +51,14 @@ def aggregation_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]
     The first behaviour switch is the aggregation (p0 down), the second the
     spreading (p0 up). Aggregation time: from the switch until the area first
     comes within 10 % of its smallest value before the spreading.
+    average_window_s > 0 (boats that cannot stop in place): the hull of each
+    agent's mean position over that trailing window (sitl.station_metrics); the
+    instantaneous smallest area and how far the agents wander about their mean
+    in the 5 minutes before the spreading (RMS, m) are reported too.
     """
     factor = p.get("factor", 2.0)
+    window = float(p.get("average_window_s", 0.0))
+    instant, rec = rec, time_averaged(rec, window)
     start_target, end_target = p.get("start_area_m2", 125_000.0), p.get("end_area_m2", 1_250.0)
     time_target = p.get("aggregation_time_s", 480.0)
     times = rec.times()
@@ -81,6 +88,14 @@ def aggregation_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]
     }
     if len(switches) > 1:
         criteria["spreads_again"] = bool(smallest and area[-1] >= 10.0 * smallest)
+    if window > 0:
+        raw = np.array([hull_area_m2(f.position) for f in instant.frames])
+        _, wander = wander_m(instant, window)
+        result["average_window_s"] = window
+        result["area_aggregated_instant_m2"] = float(raw[during].min()) if during.any() else None
+        settled = during & (times >= t_out - 300.0)  # the last 5 minutes before the spreading
+        rms = [w.mean() for w, keep in zip(wander, settled, strict=True) if keep and w.size]
+        result["wander_rms_m_settled"] = float(np.mean(rms)) if rms else None
     result["criteria"] = criteria
     return _finish(result)
 
