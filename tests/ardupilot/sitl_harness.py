@@ -20,6 +20,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from pymavlink import mavutil
 
 MODELS = {
@@ -180,6 +181,29 @@ class RoverSitl:
                 self.process.kill()
                 self.process.wait()
         self.log.close()
+
+
+def drive(sitl: RoverSitl, config, seconds: float):
+    """Run a `bob_autonomy.vessel.Vessel` with `config` for `seconds` after its start-up; every 0.5 s record
+    (wall s since start, the autopilot's own position as east/north m, its heading deg) and the distance of
+    the vessel's estimate from it (m). Returns (track, estimate errors, the vessel)."""
+    from bob_autonomy.vessel import Vessel
+
+    vessel = Vessel(config)
+    thread = threading.Thread(target=vessel.run, kwargs={"duration_s": seconds}, daemon=True)
+    thread.start()
+    track, errors = [], []
+    t0 = time.monotonic()
+    while thread.is_alive():
+        time.sleep(0.5)
+        if vessel.stats.commands and sitl.seen.positions:
+            _t, lat, lon, hdg = sitl.seen.positions[-1]
+            truth = np.array(local_xy(lat, lon))
+            estimate = vessel.pipeline.estimate(vessel.clock.now()).position[0]
+            track.append((time.monotonic() - t0, truth, hdg))
+            errors.append(float(np.hypot(*(estimate - truth))))
+    thread.join()
+    return track, errors, vessel
 
 
 def local_xy(lat: float, lon: float) -> tuple[float, float]:

@@ -11,12 +11,9 @@ TURN_RADIUS, and its wind is SIM_WIND_SPD 3 m/s from motorboat.parm); reaching: 
 
 from __future__ import annotations
 
-import threading
-import time
-
 import numpy as np
 import pytest
-from sitl_harness import HOME, RoverSitl, local_xy, sitl_binary
+from sitl_harness import HOME, RoverSitl, drive, sitl_binary
 
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.vessel import Vessel, VesselConfig
@@ -41,18 +38,8 @@ def _run_leg(sitl: RoverSitl, goal: tuple[float, float]) -> tuple[list, Vessel]:
         behavior=BehaviorChoice(behavior="bob-rule", params=params),
         arm_timeout_s=60.0,
     )
-    vessel = Vessel(config)
-    thread = threading.Thread(target=vessel.run, kwargs={"duration_s": LEG_S}, daemon=True)
-    thread.start()
-    track = []
-    t0 = time.monotonic()
-    while thread.is_alive():
-        time.sleep(0.5)
-        if vessel.stats.commands and sitl.seen.positions:
-            _t, lat, lon, _hdg = sitl.seen.positions[-1]
-            track.append((time.monotonic() - t0, np.array(local_xy(lat, lon))))
-    thread.join()
-    return track, vessel
+    track, _errors, vessel = drive(sitl, config, LEG_S)
+    return [(t, xy) for t, xy, _hdg in track], vessel
 
 
 def test_motorboat_reaches_goals_in_four_directions_and_holds_near_them(tmp_path) -> None:

@@ -12,12 +12,11 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
 import pytest
-from sitl_harness import HOME, RoverSitl, local_xy, sitl_binary
+from sitl_harness import HOME, RoverSitl, drive, sitl_binary
 
 from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
@@ -44,26 +43,8 @@ def _config(sitl: RoverSitl, goal: tuple[float, float], **overrides) -> VesselCo
     return VesselConfig(**values)
 
 
-def _truth(sitl: RoverSitl) -> np.ndarray:
-    _t, lat, lon, _hdg = sitl.seen.positions[-1]
-    return np.array(local_xy(lat, lon))
-
-
 def _drive(sitl: RoverSitl, config: VesselConfig, seconds: float) -> tuple[list, list]:
-    """Run a Vessel for `seconds`; every 0.5 s record (time, truth xy, estimate xy, heading deg)."""
-    vessel = Vessel(config)
-    thread = threading.Thread(target=vessel.run, kwargs={"duration_s": seconds}, daemon=True)
-    thread.start()
-    track, errors = [], []
-    t0 = time.monotonic()
-    while thread.is_alive():
-        time.sleep(0.5)
-        if vessel.stats.commands and sitl.seen.positions:
-            truth = _truth(sitl)
-            estimate = vessel.pipeline.estimate(vessel.clock.now()).position[0]
-            track.append((time.monotonic() - t0, truth, sitl.seen.positions[-1][3]))
-            errors.append(float(np.hypot(*(estimate - truth))))
-    thread.join()
+    track, errors, _vessel = drive(sitl, config, seconds)
     return track, errors
 
 
