@@ -58,7 +58,7 @@ def test_a_wish_to_the_left_steers_left_and_a_wish_behind_turns_at_steerage_spee
     left = mpc.solve(np.array([0.0, 1.0]), np.array([1.0, 0.0]), np.zeros(2), 0.0)
     assert left.steering < -0.5 and left.heading_error_rad == pytest.approx(math.pi / 2)
     mpc.reset()
-    behind = mpc.solve(np.array([-1.0, 0.0]), np.zeros(2), np.zeros(2), 0.0)
+    behind = mpc.solve(np.array([-1.5, 0.0]), np.zeros(2), np.zeros(2), 0.0)  # faster than REVERSE_SPEED_MPS
     assert behind.throttle > 0.0 and abs(behind.steering) > 0.5
     assert behind.speed_ref_mps == pytest.approx(0.25 * MODEL.top_speed_mps)  # turns, never stops to think
 
@@ -73,7 +73,7 @@ def test_a_slow_wish_behind_is_met_astern_and_astern_can_be_forbidden() -> None:
         back = mpc.solve(np.array([-0.3, 0.05]), np.array([-0.3, 0.0]), np.zeros(2), 0.0)
     assert back.steering < 0.0  # astern, the steering is reversed: left steering swings the bow right
     # Fast or forbidden: it turns around instead.
-    assert MotorboatMpc(MODEL).solve(np.array([-1.0, 0.05]), np.zeros(2), np.zeros(2), 0.0).throttle > 0.0
+    assert MotorboatMpc(MODEL).solve(np.array([-1.5, 0.05]), np.zeros(2), np.zeros(2), 0.0).throttle > 0.0
     forward_only = MotorboatMpc(MODEL, min_throttle=0.0)
     assert forward_only.solve(np.array([-0.3, 0.05]), np.zeros(2), np.zeros(2), 0.0).throttle >= 0.0
     assert MODEL.throttle_of(-0.25) == pytest.approx(-0.5) and MODEL.fraction_of(-0.5) == pytest.approx(-0.25)
