@@ -82,7 +82,7 @@ _HOUSEKEEPING = {
 _AFLOAT = {
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
     mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
-    mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 10.0),
+    mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 5.0),
     **_HOUSEKEEPING,
 }
 STREAMS_HZ = {
@@ -96,6 +96,9 @@ STREAMS_HZ = {
         **_HOUSEKEEPING,
     },
 }
+
+
+RECOVERED_FACTOR = 1.25  # a slow stream counts as recovered at this multiple of its slowest usable rate
 
 
 def message_name(message_id: int) -> str:
@@ -504,8 +507,9 @@ class AutopilotSession:
         return None
 
     def slow_streams(self, now_s: float, grace_s: float = 5.0) -> list[str]:
-        """New warnings for messages the estimators need that arrive slower than usable (each said once until it
-        recovers), `grace_s` after the streams were requested."""
+        """New warnings for messages the estimators need that arrive slower than usable, `grace_s` after the
+        streams were requested: each said once until it has recovered to 1.25 times the slowest usable rate (so a
+        rate hovering at the limit is reported once, not every few seconds)."""
         if self._streams_requested_at is None or now_s - self._streams_requested_at < grace_s:
             return []
         found = []
@@ -519,7 +523,7 @@ class AutopilotSession:
                     f"{message_name(message)} arrives at {rate:.1f} Hz (asked {wanted:g} Hz, the estimator needs at "
                     f"least {slowest:g} Hz): check the autopilot's SRn_* rates and the link's bandwidth"
                 )
-            elif rate >= slowest:
+            elif rate >= RECOVERED_FACTOR * slowest:
                 self._slow_warned.discard(message)
         return found
 

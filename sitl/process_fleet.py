@@ -110,7 +110,7 @@ class ProcessOptions:
     external_gcs: bool = False
     failsafe_s: float = 1.0
     arm_timeout_s: float = 60.0
-    stop_timeout_s: float = 3.0
+    stop_timeout_s: float = 6.0  # a vessel sends neutral for 0.6 s and hands RC back before it exits
     autonomy: tuple[str, ...] = AUTONOMY_COMMAND
 
     def __post_init__(self) -> None:
