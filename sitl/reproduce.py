@@ -34,7 +34,7 @@ from sitl.distributed import check_execution, describe_execution
 from sitl.radio import TABLE_1
 from sitl.runner import check_output_directory, simulate, write_atomically
 from sitl.scenario import Scenario, ScenarioError, load_scenario
-from sitl.sweep import SweepRun, execute_runs, finish_partial, metrics_row, partial_path, write_rows_csv
+from sitl.sweep import SweepRun, execute_runs, failed_row, finish_partial, metrics_row, partial_path, write_rows_csv
 
 PASS_RATE = 0.9  # a criterion reproduces when it passes at 9 of 10 seeds or better
 
@@ -182,7 +182,10 @@ def select_experiments(names: Sequence[str]) -> list[Experiment]:
 def run_experiment(task: tuple[Scenario, bool]) -> dict[str, Any]:
     """Simulate one (scenario, force): its metrics row, with Table 1's measured entries as delivery.N*_d*m."""
     scenario, force = task
-    metrics = simulate(scenario, force=force).metrics
+    try:
+        metrics = simulate(scenario, force=force).metrics
+    except ScenarioError as error:  # e.g. a seed whose start cannot be placed: a failed run, the others go on
+        return failed_row(error)
     row = metrics_row(metrics)
     for entry in metrics.get("table", []):
         row[f"delivery.N{entry['agents']}_d{entry['distance_m']:g}m"] = float(entry["measured"])
@@ -282,6 +285,7 @@ REPORT_COLUMNS = [
     "max",
     "paper",
     "paper_text",
+    "seeds",
 ]
 
 
@@ -295,7 +299,8 @@ def summarise(experiments: Sequence[Experiment], rows: Sequence[dict[str, Any]])
     """report.csv's rows: per experiment, 'all criteria', each criterion's passes, each figure's statistics.
 
     A criterion a run does not report (e.g. no removal happened in a shortened run) is not counted
-    for it: `runs` says how many did. A figure a run could not measure (None: never happened) is
+    for it: `runs` says how many did; a run that could not be simulated at all (`error`) counts as
+    failing every criterion of its experiment. A figure a run could not measure (None: never happened) is
     left out of the statistics: `runs` says how many had a value.
     """
     out = []
@@ -320,7 +325,7 @@ def summarise(experiments: Sequence[Experiment], rows: Sequence[dict[str, Any]])
         )
         criteria = sorted({k for r in mine for k in r if k.startswith("criteria.")})
         for key in criteria:
-            have = [bool(r[key]) for r in mine if key in r]
+            have = [bool(r.get(key)) for r in mine if key in r or "error" in r]  # a run that failed fails each
             out.append(
                 {
                     **base,
@@ -331,6 +336,12 @@ def summarise(experiments: Sequence[Experiment], rows: Sequence[dict[str, Any]])
                     "pass_rate": sum(have) / len(have),
                 }
             )
+        errors: dict[str, list[int]] = {}
+        for r in mine:
+            if "error" in r:
+                errors.setdefault(str(r["error"]), []).append(int(r["seed"]))
+        for text, seeds in errors.items():
+            out.append({**base, "item": "error", "name": text, "runs": len(seeds), "seeds": " ".join(map(str, seeds))})
         for figure in e.figures:
             values = [float(r[figure.metric]) for r in mine if _is_number(r.get(figure.metric))]
             entry = {
@@ -413,6 +424,9 @@ def markdown(
         for r in mine:
             if r["item"] in ("all", "criterion"):
                 lines.append(f"| {r['name']} | {r['passed']}/{r['runs']} | {r['pass_rate']:.0%} |")
+        for r in mine:
+            if r["item"] == "error":
+                lines += ["", f"{r['runs']} run(s) could not be simulated (seeds {r['seeds']}): {r['name']}"]
         lines += ["", "| figure | median | quartiles | range | runs | paper |", "|---|---|---|---|---|---|"]
         labels = {f.metric: f.label for f in e.figures}
         for r in mine:

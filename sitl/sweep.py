@@ -232,9 +232,23 @@ def metrics_row(metrics: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_point(task: tuple[Scenario, bool]) -> dict[str, Any]:
-    """Simulate one (scenario, force) and return its metrics row. Runs on a Dask worker or here."""
+    """Simulate one (scenario, force) and return its metrics row. Runs on a Dask worker or here.
+
+    A run that its seed makes impossible (ScenarioError while setting up, e.g. agents that cannot be
+    placed apart in their start box) is a failed run, not the end of the sweep: its row says why
+    (`error`) and `passed` is False.
+    """
     scenario, force = task
-    return metrics_row(simulate(scenario, force=force).metrics)
+    try:
+        metrics = simulate(scenario, force=force).metrics
+    except ScenarioError as error:
+        return failed_row(error)
+    return metrics_row(metrics)
+
+
+def failed_row(error: Exception) -> dict[str, Any]:
+    """The row of a run that could not be simulated: passed False and the reason, on one line."""
+    return {"passed": False, "error": " ".join(str(error).split())}
 
 
 # ---------------------------------------------------------------- the partial file

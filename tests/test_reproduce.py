@@ -132,3 +132,25 @@ def test_an_interrupted_reproduction_resumes(tmp_path: Path, capsys, monkeypatch
     monkeypatch.setattr(sitl.reproduce, "simulate", real)
     assert main([*argv, "--resume"]) == 0
     assert [r["seed"] for r in table(tmp_path / "r" / "runs.csv")] == ["1", "2"]
+
+
+def test_a_seed_that_cannot_start_is_a_failed_run_and_the_others_go_on(tmp_path: Path, monkeypatch) -> None:
+    real = sitl.reproduce.simulate
+
+    def no_room_at_seed_2(scenario, **kwargs):
+        if scenario.seed == 2:
+            raise ScenarioError("cannot place 10 agents 0.4 m apart in box (0, 0)..(3, 3)")
+        return real(scenario, **kwargs)
+
+    monkeypatch.setattr(sitl.reproduce, "simulate", no_room_at_seed_2)
+    argv = ["reproduce", "1", "--seeds", "3", "--duration", "12", "--quiet", "--out", str(tmp_path / "r")]
+    assert main(argv) == 1
+    runs = table(tmp_path / "r" / "runs.csv")
+    assert [(r["seed"], r["passed"], r["error"]) for r in runs][1] == (
+        "2", "False", "cannot place 10 agents 0.4 m apart in box (0, 0)..(3, 3)"
+    )  # fmt: skip
+    report = {(r["item"], r["name"]): r for r in table(tmp_path / "r" / "report.csv")}
+    consensus = report[("criterion", "within_5_deg_by_11_s")]
+    assert (consensus["passed"], consensus["runs"]) == ("2", "3")  # the failed run fails the criterion too
+    assert report[("error", "cannot place 10 agents 0.4 m apart in box (0, 0)..(3, 3)")]["seeds"] == "2"
+    assert "1 run(s) could not be simulated (seeds 2): cannot place" in (tmp_path / "r" / "report.md").read_text()

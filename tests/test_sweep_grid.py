@@ -225,3 +225,17 @@ def test_resume_takes_only_runs_of_the_same_scenario(work: Path, monkeypatch) ->
     # Another duration is another scenario: the kept run does not belong to this sweep and is run again.
     assert main([*argv, "--duration", "1.0", "--out", "o", "--resume"]) == 0
     assert counting.calls == 2
+
+
+def test_a_seed_that_cannot_start_is_a_failed_row_and_the_sweep_goes_on(work: Path, monkeypatch) -> None:
+    def no_room_at_seed_1(scenario, **kwargs):
+        if scenario.seed == 1:
+            raise ScenarioError("cannot place 3 agents 0.4 m apart in box (0, 0)..(3, 3)")
+        return REAL_SIMULATE(scenario, **kwargs)
+
+    monkeypatch.setattr(sitl.sweep, "simulate", no_room_at_seed_1)
+    assert main(["sweep", *TINY, "--runs", "2", "--out", "o"]) == 0
+    rows = table(work / "o" / "sweep.csv")
+    assert [(r["seed"], r["passed"], r["error"]) for r in rows] == [
+        ("1", "False", "cannot place 3 agents 0.4 m apart in box (0, 0)..(3, 3)"), ("2", "True", "")
+    ]  # fmt: skip
