@@ -59,6 +59,7 @@ class Experiment:
     title: str
     figures: tuple[Figure, ...]
     agents: int | None = None
+    beyond_paper: bool = False  # run only when named (the paper's variants for other vessels, e.g. motorboats)
 
 
 def _radio_figures() -> tuple[Figure, ...]:
@@ -79,6 +80,18 @@ _AVOIDANCE = (
     Figure("arrival_time_s", "mover at its goal, s", None, "reaches its goal"),
     Figure("swarm_max_displacement_m", "largest displacement of the swarm, m"),
     Figure("path_fraction_inside_swarm", "fraction of the path inside the swarm"),
+)
+
+_LEADER_FOLLOWER = (
+    Figure("leader_path_m", "leader's path, m", 400.0, "about 400 m"),
+    Figure("closest_approach_m", "closest two vessels ever came, m", None, "the lattice persists"),
+    Figure("final_nn_mean_m", "mean nearest-neighbour distance at the end, m", None, "p0 = 5 m"),
+)
+_AGGREGATION = (
+    Figure("area_before_m2", "hull area before, m2", 125_000.0, "about 125,000 m2"),
+    Figure("area_aggregated_m2", "hull area at its tightest, m2", 1_250.0, "1,250 m2"),
+    Figure("aggregation_time_s", "time to aggregate, s", 480.0, "just over 8 min"),
+    Figure("area_final_m2", "hull area after spreading again, m2", None, "spreads again"),
 )
 
 EXPERIMENTS: tuple[Experiment, ...] = (
@@ -138,25 +151,46 @@ EXPERIMENTS: tuple[Experiment, ...] = (
         5,
         "leader-follower",
         "Leader-follower of 45 buoys, p0 = 5 m, a weak buoy (physics)",
-        (
-            Figure("leader_path_m", "leader's path, m", 400.0, "about 400 m"),
-            Figure("closest_approach_m", "closest two buoys ever came, m", None, "the lattice persists"),
-            Figure("final_nn_mean_m", "mean nearest-neighbour distance at the end, m", None, "p0 = 5 m"),
-        ),
+        _LEADER_FOLLOWER,
     ),
     Experiment(
         "aggregation",
         4,
         "aggregation",
         "Aggregation of 45 buoys in wind, p0 50 m -> 5 m -> 50 m (physics)",
-        (
-            Figure("area_before_m2", "hull area before, m2", 125_000.0, "about 125,000 m2"),
-            Figure("area_aggregated_m2", "hull area at its tightest, m2", 1_250.0, "1,250 m2"),
-            Figure("aggregation_time_s", "time to aggregate, s", 480.0, "just over 8 min"),
-            Figure("area_final_m2", "hull area after spreading again, m2", None, "spreads again"),
-        ),
+        _AGGREGATION,
     ),
 )
+
+
+_AGGREGATION_WANDER = Figure("wander_rms_m_settled", "RMS wander about each vessel's 60 s mean spot, m")
+_MOTORBOAT_EXPERIMENTS: tuple[Experiment, ...] = (
+    Experiment(
+        "aggregation-motorboats",
+        4,
+        "aggregation-motorboats",
+        "Aggregation of 45 motorboats in wind (hull of 60 s mean positions; physics)",
+        (*_AGGREGATION, _AGGREGATION_WANDER),
+        beyond_paper=True,
+    ),
+    Experiment(
+        "aggregation-mixed",
+        4,
+        "aggregation-mixed",
+        "Aggregation of 25 buoys and 20 motorboats together (hull of 60 s mean positions; physics)",
+        (*_AGGREGATION, _AGGREGATION_WANDER),
+        beyond_paper=True,
+    ),
+    Experiment(
+        "leader-follower-motorboats",
+        5,
+        "leader-follower-motorboats",
+        "Leader-follower of 45 motorboats, a weak one (physics)",
+        _LEADER_FOLLOWER,
+        beyond_paper=True,
+    ),
+)
+EXPERIMENTS = EXPERIMENTS + _MOTORBOAT_EXPERIMENTS
 
 
 def experiment_names() -> list[str]:
@@ -165,12 +199,13 @@ def experiment_names() -> list[str]:
 
 def select_experiments(names: Sequence[str]) -> list[Experiment]:
     """The experiments named (a name, or DESIGN.md's number for all its variants), in the report's
-    order; all of them when `names` is empty. ScenarioError naming an unknown one and the known ones."""
+    order; all the paper's when `names` is empty (variants beyond the paper, such as motorboats, run when
+    named). ScenarioError naming an unknown one and the known ones."""
     if not names:
-        return list(EXPERIMENTS)
+        return [e for e in EXPERIMENTS if not e.beyond_paper]
     chosen: set[str] = set()
     for name in names:
-        hits = [e.name for e in EXPERIMENTS if e.name == name or str(e.number) == name]
+        hits = [e.name for e in EXPERIMENTS if e.name == name or (str(e.number) == name and not e.beyond_paper)]
         if not hits:
             raise ScenarioError(
                 f"no experiment {name!r}; give DESIGN.md's number (1 to 7) or a name: {', '.join(experiment_names())}"
