@@ -53,8 +53,7 @@ The MPC (every call; the QP is built once, casadi SX):
     with a first-order lag `yaw_time_constant_s`; delta integrates r
     (trapezoid). The heading dynamics know the turning limit: |yaw rate| <= u / R;
   * cost: heading_weight * sum (delta_k - e0)^2 +
-    speed_weight * sum ((u_k - U) / max(|U|, 0.3 m/s))^2 (relative: a boat
-    asked for a slow speed keeps to it rather than speeding up to turn faster) + steering_weight * sum s_k^2 +
+    speed_weight * sum ((u_k - U) / top speed)^2 + steering_weight * sum s_k^2 +
     throttle / steering change weights * sum (input_k - input_{k-1})^2;
   * constraints: thrust fraction within the available throttle (astern: times
     reverse_thrust_fraction; none with min_throttle 0) and within what holds
@@ -92,7 +91,6 @@ MIN_TURN_SPEED_MPS = 0.1  # the speed the yaw model is linearised at, at least (
 HOLD_SPEED_MPS = 0.1
 REVERSE_SPEED_MPS = 1.0  # a wish behind the boat up to this speed through the water is met astern
 SPEED_CAP_FACTOR, SPEED_CAP_MARGIN_MPS = 1.5, 0.2  # MotorboatModel.throttle_cap
-SPEED_ERROR_FLOOR_MPS = 0.3  # speed errors in the MPC's cost are relative to max(|U|, this)
 
 
 @dataclass(frozen=True)
@@ -337,8 +335,7 @@ class MotorboatMpc:
     """Linear MPC of a motorboat's heading and speed (see the module docstring for the formulation).
 
     model: the nominal MotorboatModel. step_s, horizon: the prediction's step (s) and length (steps).
-    heading_weight (per rad^2), speed_weight (per (speed error / max(|U|, 0.3 m/s))^2), steering_weight,
-    throttle_change_weight,
+    heading_weight (per rad^2), speed_weight (per (speed / top speed)^2), steering_weight, throttle_change_weight,
     steering_change_weight: cost weights per step. hold_speed_mps: below this wished speed through the water the
     boat holds (default HOLD_SPEED_MPS, 0.1 m/s); turn_speed_fraction: the least speed while turning, as a
     fraction of top speed. min_throttle: the lowest throttle (-1, the default: full astern; 0: never astern).
@@ -504,9 +501,7 @@ def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tupl
     throttle, steer = z[:n], z[n:]
     c1, c2, mass = m.linear_drag_n_per_mps, m.quadratic_drag_n_per_mps2, m.mass_kg
     lag = math.exp(-h / m.yaw_time_constant_s)
-    # Speed errors relative to the wished speed (at least SPEED_ERROR_FLOOR_MPS): a boat asked for 0.15 m/s in a
-    # crowd keeps to it rather than speeding up to turn faster; one asked for 1 m/s may trade some speed for a turn.
-    scale = ca.fmax(ca.fabs(reference), SPEED_ERROR_FLOOR_MPS)
+    top = m.top_speed_mps
     cost, u, r, delta = 0, u0, r0, 0
     previous = (throttle_prev, steer_prev)
     for k in range(n):
@@ -523,7 +518,7 @@ def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tupl
         b = ca.if_else(x < 1e-9, h / mass, (1.0 - a) / jac)
         u = a * u + b * (m.max_thrust_n * throttle[k] + c2 * u_bar[k] * speed)
         r = r_next
-        cost += w_heading * (delta - target) ** 2 + w_speed * ((u - reference) / scale) ** 2
+        cost += w_heading * (delta - target) ** 2 + w_speed * ((u - reference) / top) ** 2
         cost += w_steer * steer[k] ** 2
         cost += w_dthrottle * (throttle[k] - previous[0]) ** 2 + w_dsteer * (steer[k] - previous[1]) ** 2
         previous = (throttle[k], steer[k])
