@@ -18,6 +18,8 @@ from sitl.scenario import load_scenario, packaged_scenarios, validate_scenario
 # On-air bytes of one state packet, unsigned and signed (docs/mesh.md lists the same).
 PACKET_BYTES = {
     "aggregation": (47, 61),
+    "aggregation-mixed": (47, 61),
+    "aggregation-motorboats": (47, 61),
     "avoidance-around": (56, 70),
     "avoidance-through": (56, 70),
     "avoidance-yield": (56, 70),
@@ -26,6 +28,7 @@ PACKET_BYTES = {
     "heading-consensus-faulty": (43, 57),
     "leader-follower": (52, 66),
     "leader-follower-intruder": (52, 66),
+    "leader-follower-motorboats": (52, 66),
     "perimeter-defense": (38, 52),
     "radio-table": (47, 61),
     "search-exploration": (52, 66),
