@@ -22,14 +22,19 @@ be finite too, and periods and time limits positive.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
 import logging.handlers
 import math
+import os
+import select
 import signal
 import sys
+import time
 import tomllib
+import traceback
 
 from behaviors.registry import BEHAVIORS
 from bob_autonomy.autopilot_start import StartOptions
@@ -359,8 +364,121 @@ def _join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+def _fast_exit(code: int) -> None:
+    """End this process now with `code`, after flushing the logs and the standard streams: skips the
+    interpreter's teardown (~0.1 s of CPU with numpy, casadi and pymavlink loaded), which 45 autonomy processes
+    stopping at once on 2 cores turn into seconds (issue #13: processes killed after their stop timeout)."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+def _forked_vessel(argv: list[str], out_path: str, request_fd: int, reply_fd: int) -> None:
+    """In a child of the fork server: its own session, standard output and error to `out_path`, SIGTERM when
+    the fork server dies, then `bob-autonomy` with `argv`; never returns."""
+    code = 1
+    try:
+        os.close(request_fd)
+        os.close(reply_fd)
+        os.setsid()
+        die_with_parent()
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGCHLD):
+            signal.signal(sig, signal.SIG_DFL)
+        null = os.open(os.devnull, os.O_RDONLY)
+        out = os.open(out_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(null, 0)
+        os.dup2(out, 1)
+        os.dup2(out, 2)
+        os.close(null)
+        os.close(out)
+        sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+        sys.argv = ["bob-autonomy", *argv]
+        code = main(argv)
+    except SystemExit as stop:
+        code = stop.code if isinstance(stop.code, int) else 1
+    except BaseException:
+        traceback.print_exc()
+    _fast_exit(code)
+
+
+def serve_forks(request_fd: int = 0, reply_fd: int = 1) -> int:
+    """`bob-autonomy fork-server`: start autonomy processes by forking one interpreter that has already
+    imported everything a vessel needs (simulated fleets: 45 `bob-autonomy run` processes on 2 cores each
+    spent ~1 s of CPU importing numpy, scipy, casadi, pymavlink and pydantic; forked, they share it).
+
+    Requests, one JSON object a line on `request_fd`: {"argv": [...], "out": PATH} (the arguments of
+    `bob-autonomy`, and where its standard output and error go). Replies, a JSON line each on `reply_fd`:
+    {"pid": N} for every request, in order, and {"exit": N, "status": CODE, "t": MONOTONIC_S} when a child
+    ends (CODE as subprocess's returncode: negative for a signal; t on the system's monotonic clock, s).
+    At end of input: waits for its children, then exits 0. A bad request is answered {"error": TEXT}.
+    """
+    import bob_autonomy.vessel  # noqa: F401 - everything a vessel imports, once, before any fork
+    from bob_autonomy.mpc import BuoyMpc
+
+    BuoyMpc()  # loads casadi's QP plugin library before the forks
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the fleet stops the children; Ctrl-C is the fleet's
+    reply_fd = os.dup(reply_fd)
+    os.dup2(2, 1)  # a stray print goes to standard error, never into the replies
+    children: set[int] = set()
+    pending = b""
+    reading = True
+
+    def reply(message: dict) -> None:
+        data = (json.dumps(message) + "\n").encode()
+        while data:
+            data = data[os.write(reply_fd, data) :]
+
+    while reading or children:
+        if reading:
+            ready = select.select([request_fd], [], [], 0.02)[0]
+        else:
+            ready = []
+            time.sleep(0.02)
+        while children:
+            pid, status = os.waitpid(-1, os.WNOHANG)
+            if pid == 0:
+                break
+            children.discard(pid)
+            reply({"exit": pid, "status": os.waitstatus_to_exitcode(status), "t": time.monotonic()})
+        if not ready:
+            continue
+        chunk = os.read(request_fd, 65536)
+        reading = bool(chunk)
+        pending += chunk
+        *lines, pending = pending.split(b"\n")
+        for line in lines:
+            try:
+                request = json.loads(line)
+                argv, out = [str(a) for a in request["argv"]], str(request["out"])
+            except (ValueError, KeyError, TypeError) as error:
+                reply({"error": f"bad request: {error}"})
+                continue
+            pid = os.fork()
+            if pid == 0:
+                _forked_vessel(argv, out, request_fd, reply_fd)
+            children.add(pid)
+            reply({"pid": pid})
+    return 0
+
+
+def die_with_parent() -> None:
+    """On Linux, ask for SIGTERM when the parent process dies, even by SIGKILL, so that no autonomy process
+    outlives the fleet that started it (elsewhere a no-op)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 def main(argv: list[str] | None = None) -> int:
+    """`bob-autonomy` with `argv` (default: the command line, and then a `run` ends the process itself)."""
+    program = argv is None
     argv = _join_negative_values(list(sys.argv[1:] if argv is None else argv))
+    if argv == ["fork-server"]:
+        return serve_forks()
     if argv and argv[0].startswith("--") and argv[0] not in ("--help", "-h"):
         argv.insert(0, "run")  # `bob-autonomy --vehicle ... --behavior ...` is `bob-autonomy run ...`
     try:
@@ -371,7 +489,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "behaviors":
         print(_describe_behaviors())
         return 0
-    return _run(args)
+    code = _run(args)
+    if program:  # the process ends here: skip the interpreter's teardown (see _fast_exit)
+        _fast_exit(code)
+    return code
 
 
 if __name__ == "__main__":

@@ -34,10 +34,8 @@ import contextlib
 import dataclasses
 import json
 import math
-import os
 import select
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -57,6 +55,15 @@ from sitl.fleet import LockstepFleet, build_world, initial_poses, motorboat_para
 from sitl.mesh_security import mesh_log_counters, write_fleet_key
 from sitl.metrics import METRICS
 from sitl.plots import write_figures
+from sitl.process_supervision import (
+    ForkServer,
+    Process,
+    StopReport,
+    SupervisionError,
+    memory_summary,
+    start_exec,
+    stop_all,
+)
 from sitl.radio_relay import DEFAULT_MESH_PORT, RadioRelay
 from sitl.recorder import Frame, Recorder
 from sitl.runner import estimation_errors, write_atomically
@@ -75,16 +82,6 @@ AUTONOMY_COMMAND = (sys.executable, "-m", "bob_autonomy.cli")  # `bob-autonomy`,
 BOB_RULE_CARRIED = ("p0", "H", "speed_scale", "max_speed", "goal_radius_m", "leader_id", "goal")
 
 
-def _die_with_parent() -> None:
-    """In a child, before exec: on Linux, ask for SIGTERM when the fleet process dies, even by SIGKILL, so no
-    autonomy process outlives it (elsewhere, a no-op: the normal shutdown path still stops them)."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        pr_set_pdeathsig = 1
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
-
-
 class ProcessFleetError(RuntimeError):
     """The process fleet could not run (a port taken, a vessel that never armed); the message says which."""
 
@@ -99,7 +96,8 @@ class ProcessOptions:
     failsafe_s: simulated seconds
     without a command before a vehicle stops. arm_timeout_s, stop_timeout_s: wall seconds to wait for every
     vehicle to be armed, and for the processes to exit after SIGTERM. autonomy: the command that runs
-    `bob-autonomy`.
+    `bob-autonomy`. fork_server: start the vessels by forking one pre-loaded `bob-autonomy fork-server`
+    (`sitl.process_supervision`; only with the real `bob-autonomy`: another command is always exec'd).
     """
 
     speed: float = 1.0
@@ -112,6 +110,7 @@ class ProcessOptions:
     arm_timeout_s: float = 60.0
     stop_timeout_s: float = 6.0  # a vessel sends neutral for 0.6 s and hands RC back before it exits
     autonomy: tuple[str, ...] = AUTONOMY_COMMAND
+    fork_server: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.speed) and self.speed > 0):
@@ -234,9 +233,12 @@ class ProcessFleet:
         self.started = False
         self.interrupted = False
         self.realtime = RealtimeStats(self.dt / options.speed)
-        self.processes: list[subprocess.Popen] = []
+        self.processes: list[Process] = []
         self.exit_codes: list[int | None] = []
         self.killed = 0
+        self.stop_report = StopReport()
+        self.memory: dict[str, float | None] = {}
+        self.forks: ForkServer | None = None
         self.startup_wall_s: float | None = None
         self.needs_gcs = False
         self._logs: list = []
@@ -343,6 +345,13 @@ class ProcessFleet:
                 self.mission = MissionClient(f"udpin:{o.host}:{o.gcs_port}")
             except OSError as error:
                 raise ProcessFleetError(f"{error}; choose another --gcs-port") from error
+        if o.fork_server and tuple(o.autonomy) == AUTONOMY_COMMAND:
+            log = open(self.out / "fork-server.out", "wb")  # noqa: SIM115 - closed in stop_processes()
+            self._logs.append(log)
+            try:
+                self.forks = ForkServer(o.autonomy, log)
+            except SupervisionError as error:
+                raise ProcessFleetError(str(error)) from error
         for i in range(self.n):
             self._launch(i, kinds[i])
 
@@ -387,19 +396,15 @@ class ProcessFleet:
         command += ["--gcs", f"udpout:{o.host}:{o.gcs_port}"]
         if self.mesh_key_file is not None:
             command += ["--mesh-key", str(self.mesh_key_file)]
-        out = open(self.out / f"vessel-{i + 1:02d}.out", "wb")  # noqa: SIM115 - closed in stop_processes()
-        self._logs.append(out)
+        output = self.out / f"vessel-{i + 1:02d}.out"
         try:
-            process = subprocess.Popen(
-                command,
-                stdin=subprocess.DEVNULL,
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-                preexec_fn=_die_with_parent,
-                env={**os.environ, "PYTHONUNBUFFERED": "1"},
-            )
-        except OSError as error:
+            if self.forks is not None:
+                process: Process = self.forks.spawn(command[len(o.autonomy) :], output)
+            else:
+                out = open(output, "wb")  # noqa: SIM115 - closed in stop_processes()
+                self._logs.append(out)
+                process = start_exec(command, out)
+        except (OSError, SupervisionError) as error:
             raise ProcessFleetError(f"cannot start the autonomy of vessel {i + 1}: {error}") from error
         self.processes.append(process)
         self.exit_codes.append(None)
@@ -613,26 +618,22 @@ class ProcessFleet:
         self._stop.set()
 
     def stop_processes(self) -> None:
-        """SIGTERM to every autonomy process group; serve their last (neutral) commands for up to
-        stop_timeout_s; SIGKILL what is left; reap them all."""
+        """Note the processes' memory; SIGTERM to every autonomy process group; serve their last (neutral)
+        commands for up to stop_timeout_s; SIGKILL what is left; reap them all; note how long each took."""
         self._watch_processes()
-        for process in self.processes:
-            if process.poll() is None:
-                with contextlib.suppress(ProcessLookupError, PermissionError):
-                    os.killpg(process.pid, signal.SIGTERM)
-        deadline = time.monotonic() + self.options.stop_timeout_s
-        while any(p.poll() is None for p in self.processes) and time.monotonic() < deadline:
+        self.memory = memory_summary(self.processes)
+
+        def serve(wait_s: float) -> None:
             if self.server is not None:
-                self.server.serve(0.05, self.bodies.t)
+                self.server.serve(wait_s, self.bodies.t)
             else:
-                time.sleep(0.05)
-        for process in self.processes:
-            if process.poll() is None:
-                self.killed += 1
-                with contextlib.suppress(ProcessLookupError, PermissionError):
-                    os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
+                time.sleep(wait_s)
+
+        self.stop_report = stop_all(self.processes, self.options.stop_timeout_s, serve)
+        self.killed = self.stop_report.killed
         self.exit_codes = [p.returncode for p in self.processes]
+        if self.forks is not None:
+            self.forks.close()
         for log in self._logs:
             log.close()
 
@@ -662,6 +663,9 @@ class ProcessFleet:
             "exit_codes": self.exit_codes,
             "killed": self.killed,
             "startup_wall_s": None if self.startup_wall_s is None else round(self.startup_wall_s, 3),
+            "launcher": "fork-server" if self.forks is not None else "exec",
+            **self.stop_report.summary(),
+            "memory": self.memory,
         }
         if self.event_delays_s:
             metrics["event_delays_s"] = self.event_delays_s

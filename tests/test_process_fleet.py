@@ -601,8 +601,10 @@ def test_ctrl_c_stops_the_fleet_cleanly_and_writes_its_outputs(tmp_path: Path) -
             time.sleep(0.2)
         assert started, cli.stderr.read() if cli.poll() is not None else "vessels did not arm"
         time.sleep(1.0)
-        children = fleet_children(cli.pid)
-        assert len(children) == 2
+        forks = fleet_children(cli.pid)  # the fork server, whose children are the vessels
+        assert len(forks) == 1
+        children = [*forks, *fleet_children(forks[0])]
+        assert len(children) == 3
         cli.send_signal(signal.SIGINT)
         stdout, stderr = cli.communicate(timeout=30)
     finally:
@@ -612,6 +614,8 @@ def test_ctrl_c_stops_the_fleet_cleanly_and_writes_its_outputs(tmp_path: Path) -
     metrics = json.loads((out / "metrics.json").read_text())
     assert 0.0 < metrics["interrupted_at_s"] < 600.0 and metrics["passed"] is False
     assert metrics["processes"]["exit_codes"] == [0, 0] and metrics["processes"]["killed"] == 0
+    assert metrics["processes"]["launcher"] == "fork-server" and len(metrics["processes"]["stop_s"]) == 2
+    assert all(0.0 < t < 6.0 for t in metrics["processes"]["stop_s"])
     assert (out / "trajectory.csv").exists() and (out / "vehicles.tlog").stat().st_size > 0
     assert '"interrupted_at_s"' in stdout
     assert all(gone(pid) for pid in children)
