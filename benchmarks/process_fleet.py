@@ -63,8 +63,10 @@ def vessel_log_figures(out: Path) -> dict[str, object]:
     }
 
 
-def run_fleet(agents: int, duration_s: float, launcher: str, base_port: int) -> dict[str, object]:
-    """One process fleet of `agents` buoys for duration_s at speed 1; its figures."""
+def run_fleet(
+    agents: int, duration_s: float, launcher: str, base_port: int, keep: Path | None = None
+) -> dict[str, object]:
+    """One process fleet of `agents` buoys for duration_s at speed 1; its figures (outputs kept in `keep`)."""
     scenario = load_scenario("aggregation").with_overrides(agents, None, duration_s, "physics")
     scenario = scenario.model_copy(update={"events": []})
     options = ProcessOptions(
@@ -77,7 +79,7 @@ def run_fleet(agents: int, duration_s: float, launcher: str, base_port: int) -> 
     )
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="process-fleet-") as tmp:
-        out = Path(tmp) / "run"
+        out = Path(tmp) / "run" if keep is None else keep / f"{launcher}-{agents}"
         wall = time.monotonic()
         result = run_processes_to_directory(scenario, out, options)
         wall = time.monotonic() - wall
@@ -164,13 +166,14 @@ def main() -> None:
     parser.add_argument("--launcher", choices=["fork-server", "exec"], default="fork-server")
     parser.add_argument("--runs", type=int, default=1, help="fleets of --agents to run (0: none)")
     parser.add_argument("--base-port", type=int, default=27600, help="vehicle 0's UDP port (mesh: base - 100)")
+    parser.add_argument("--keep", type=Path, help="keep each run's outputs in this directory")
     parser.add_argument("--profile-startup", action="store_true", help="print where one start-up goes")
     args = parser.parse_args()
     if args.profile_startup:
         print(json.dumps({"profile_startup": profile_startup()}), flush=True)
     sizes = [args.agents] * args.runs + ([100] if args.hundred else [])
     for agents in sizes:
-        print(json.dumps(run_fleet(agents, args.duration, args.launcher, args.base_port)), flush=True)
+        print(json.dumps(run_fleet(agents, args.duration, args.launcher, args.base_port, args.keep)), flush=True)
 
 
 if __name__ == "__main__":

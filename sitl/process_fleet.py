@@ -245,7 +245,7 @@ class ProcessFleet:
         self._stop = threading.Event()
         self._k = 0  # physics steps since the physics started (boot)
         self._wall0 = 0.0
-        self.mission = None  # the fleet's MissionClient (set-behavior events), unless external_gcs
+        self.mission = None  # the fleet's MissionClient: only for set-behavior events (never with external_gcs)
         self.tlog: TlogWriter | None = None
         self.server: VehicleServer | None = None
         self.medium: RadioRelay | None = None
@@ -338,7 +338,7 @@ class ProcessFleet:
             )
         except OSError as error:
             raise ProcessFleetError(str(error)) from error
-        if not o.external_gcs:
+        if self.needs_gcs:  # a ground station only when the scenario's events need one (see _launch)
             from bob_autonomy.mission import MissionClient
 
             try:
@@ -393,7 +393,10 @@ class ProcessFleet:
             command += ["--max-thrust-fraction", repr(float(group.thrust_fraction))]
         command += ["--broadcast-period", repr(float(s.network.broadcast_period_s))]
         command += ["--neighbor-expiry", repr(float(s.network.expiry_s))]
-        command += ["--gcs", f"udpout:{o.host}:{o.gcs_port}"]
+        if self.needs_gcs or o.external_gcs:
+            # Each vessel routes all its vehicle's telemetry to its ground station (mavlink-router's job): where
+            # nobody listens that was a third of a vessel's CPU and the fleet's MissionClient decoding it all.
+            command += ["--gcs", f"udpout:{o.host}:{o.gcs_port}"]
         if self.mesh_key_file is not None:
             command += ["--mesh-key", str(self.mesh_key_file)]
         output = self.out / f"vessel-{i + 1:02d}.out"
