@@ -10,11 +10,13 @@ JSON line per run:
     latency_p99_ms     the vessels' control-step compute latency, p99 (median and max over vessels)
     stop_s_max/median  wall s from SIGTERM to each process's exit; killed: processes that had to be SIGKILLed
     rss/pss_mib        resident memory per autonomy process at the end (RSS counts shared pages; PSS shares them)
+    *_cpu_share        CPU used per wall s (of one core): each vessel's since it started, the fleet process's
     load_before/after  the machine's 1-minute load average (other users included)
 
     nice -n 10 python benchmarks/process_fleet.py                  # 45 vessels, 90 s
     nice -n 10 python benchmarks/process_fleet.py --hundred        # then 100 vessels too
     nice -n 10 python benchmarks/process_fleet.py --launcher exec  # one interpreter per vessel, as before
+    nice -n 10 python benchmarks/process_fleet.py --signal TERM    # stopped by SIGTERM (or INT) after 40 s
     python benchmarks/process_fleet.py --profile-startup --runs 0  # where one process's start-up goes
 
 Heavy: run alone, under nice, one at a time (2 cores shared).
@@ -29,10 +31,12 @@ import json
 import os
 import pstats
 import re
+import signal
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -64,9 +68,17 @@ def vessel_log_figures(out: Path) -> dict[str, object]:
 
 
 def run_fleet(
-    agents: int, duration_s: float, launcher: str, base_port: int, keep: Path | None = None
+    agents: int,
+    duration_s: float,
+    launcher: str,
+    base_port: int,
+    keep: Path | None = None,
+    vessel_nice: int = 0,
+    stop_signal: str | None = None,
+    signal_after_s: float = 40.0,
 ) -> dict[str, object]:
-    """One process fleet of `agents` buoys for duration_s at speed 1; its figures (outputs kept in `keep`)."""
+    """One process fleet of `agents` buoys for duration_s at speed 1 (or until `stop_signal`, INT or TERM, is
+    sent to this process signal_after_s wall s after the start); its figures (outputs kept in `keep`)."""
     scenario = load_scenario("aggregation").with_overrides(agents, None, duration_s, "physics")
     scenario = scenario.model_copy(update={"events": []})
     options = ProcessOptions(
@@ -76,8 +88,13 @@ def run_fleet(
         gcs_port=base_port - 99,
         fork_server=launcher == "fork-server",
         arm_timeout_s=180.0,
+        vessel_nice=vessel_nice,
     )
     load_before = os.getloadavg()[0]
+    if stop_signal is not None:  # as Ctrl-C or `kill` would: the fleet stops early and still writes its outputs
+        timer = threading.Timer(signal_after_s, os.kill, (os.getpid(), signal.Signals[f"SIG{stop_signal}"]))
+        timer.daemon = True
+        timer.start()
     with tempfile.TemporaryDirectory(prefix="process-fleet-") as tmp:
         out = Path(tmp) / "run" if keep is None else keep / f"{launcher}-{agents}"
         wall = time.monotonic()
@@ -90,6 +107,9 @@ def run_fleet(
         "agents": agents,
         "duration_s": duration_s,
         "launcher": processes["launcher"],
+        "stopped_by": f"SIG{stop_signal}" if stop_signal else "end",
+        "interrupted_at_s": m.get("interrupted_at_s"),
+        "vessel_nice": vessel_nice,
         "start_s": processes["startup_wall_s"],
         "late_fraction": realtime["late_fraction"],
         "max_lag_s": realtime["max_lag_s"],
@@ -103,6 +123,9 @@ def run_fleet(
         "rss_mib_max": memory.get("rss_mib_max"),
         "pss_mib_median": memory.get("pss_mib_median"),
         "pss_mib_max": memory.get("pss_mib_max"),
+        "vessel_cpu_share_median": memory.get("cpu_share_median"),
+        "vessel_cpu_share_max": memory.get("cpu_share_max"),
+        "fleet_cpu_share": processes.get("fleet_cpu_share"),
         "wall_s": round(wall, 1),
         "load_before": round(load_before, 2),
         "load_after": round(os.getloadavg()[0], 2),
@@ -166,6 +189,9 @@ def main() -> None:
     parser.add_argument("--launcher", choices=["fork-server", "exec"], default="fork-server")
     parser.add_argument("--runs", type=int, default=1, help="fleets of --agents to run (0: none)")
     parser.add_argument("--base-port", type=int, default=27600, help="vehicle 0's UDP port (mesh: base - 100)")
+    parser.add_argument("--vessel-nice", type=int, default=0, help="the vessels' niceness above the fleet's")
+    parser.add_argument("--signal", choices=["INT", "TERM"], help="stop the fleet with this signal instead")
+    parser.add_argument("--signal-after", type=float, default=40.0, help="wall s after the start, for --signal")
     parser.add_argument("--keep", type=Path, help="keep each run's outputs in this directory")
     parser.add_argument("--profile-startup", action="store_true", help="print where one start-up goes")
     args = parser.parse_args()
@@ -173,7 +199,11 @@ def main() -> None:
         print(json.dumps({"profile_startup": profile_startup()}), flush=True)
     sizes = [args.agents] * args.runs + ([100] if args.hundred else [])
     for agents in sizes:
-        print(json.dumps(run_fleet(agents, args.duration, args.launcher, args.base_port, args.keep)), flush=True)
+        figures = run_fleet(
+            agents, args.duration, args.launcher, args.base_port, args.keep, args.vessel_nice, args.signal,
+            args.signal_after,
+        )  # fmt: skip
+        print(json.dumps(figures), flush=True)
 
 
 if __name__ == "__main__":

@@ -375,14 +375,15 @@ def _fast_exit(code: int) -> None:
     os._exit(code)
 
 
-def _forked_vessel(argv: list[str], out_path: str, request_fd: int, reply_fd: int) -> None:
-    """In a child of the fork server: its own session, standard output and error to `out_path`, SIGTERM when
-    the fork server dies, then `bob-autonomy` with `argv`; never returns."""
+def _forked_vessel(argv: list[str], out_path: str, nice: int, request_fd: int, reply_fd: int) -> None:
+    """In a child of the fork server: its own session, `nice` added to its niceness, standard output and error
+    to `out_path`, SIGTERM when the fork server dies, then `bob-autonomy` with `argv`; never returns."""
     code = 1
     try:
         os.close(request_fd)
         os.close(reply_fd)
         os.setsid()
+        os.nice(nice)
         die_with_parent()
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGCHLD):
             signal.signal(sig, signal.SIG_DFL)
@@ -408,11 +409,12 @@ def serve_forks(request_fd: int = 0, reply_fd: int = 1) -> int:
     imported everything a vessel needs (simulated fleets: 45 `bob-autonomy run` processes on 2 cores each
     spent ~1 s of CPU importing numpy, scipy, casadi, pymavlink and pydantic; forked, they share it).
 
-    Requests, one JSON object a line on `request_fd`: {"argv": [...], "out": PATH} (the arguments of
-    `bob-autonomy`, and where its standard output and error go). Replies, a JSON line each on `reply_fd`:
-    {"pid": N} for every request, in order, and {"exit": N, "status": CODE, "t": MONOTONIC_S} when a child
-    ends (CODE as subprocess's returncode: negative for a signal; t on the system's monotonic clock, s).
-    At end of input: waits for its children, then exits 0. A bad request is answered {"error": TEXT}.
+    Requests, one JSON object a line on `request_fd`: {"argv": [...], "out": PATH, "nice": N} (the arguments
+    of `bob-autonomy`, where its standard output and error go, and the niceness to add, 0 if absent).
+    Replies, a JSON line each on `reply_fd`: {"pid": N} for every request, in order; {"exit": N, "status":
+    CODE, "t": MONOTONIC_S} when a child ends (CODE as subprocess's returncode: negative for a signal; t on
+    the system's monotonic clock, s); {"error": TEXT} for a bad request. At end of input: waits for its
+    children, then exits 0.
     """
     import bob_autonomy.vessel  # noqa: F401 - everything a vessel imports, once, before any fork
     from bob_autonomy.mpc import BuoyMpc
@@ -453,12 +455,15 @@ def serve_forks(request_fd: int = 0, reply_fd: int = 1) -> int:
             try:
                 request = json.loads(line)
                 argv, out = [str(a) for a in request["argv"]], str(request["out"])
-            except (ValueError, KeyError, TypeError) as error:
+                nice = int(request.get("nice", 0))
+                if not 0 <= nice <= 19:
+                    raise ValueError(f"nice must be 0..19, got {nice}")
+            except (ValueError, KeyError, TypeError, AttributeError) as error:
                 reply({"error": f"bad request: {error}"})
                 continue
             pid = os.fork()
             if pid == 0:
-                _forked_vessel(argv, out, request_fd, reply_fd)
+                _forked_vessel(argv, out, nice, request_fd, reply_fd)
             children.add(pid)
             reply({"pid": pid})
     return 0

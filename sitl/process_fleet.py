@@ -98,6 +98,8 @@ class ProcessOptions:
     vehicle to be armed, and for the processes to exit after SIGTERM. autonomy: the command that runs
     `bob-autonomy`. fork_server: start the vessels by forking one pre-loaded `bob-autonomy fork-server`
     (`sitl.process_supervision`; only with the real `bob-autonomy`: another command is always exec'd).
+    vessel_nice: niceness the autonomy processes get above the fleet's (0..19): when they want more CPU than
+    there is (100 vessels on 2 cores), the world keeps to wall time and the vessels lag, as slow computers would.
     """
 
     speed: float = 1.0
@@ -111,8 +113,11 @@ class ProcessOptions:
     stop_timeout_s: float = 6.0  # a vessel sends neutral for 0.6 s and hands RC back before it exits
     autonomy: tuple[str, ...] = AUTONOMY_COMMAND
     fork_server: bool = True
+    vessel_nice: int = 0
 
     def __post_init__(self) -> None:
+        if not 0 <= self.vessel_nice <= 19:
+            raise ValueError(f"vessel_nice must be 0..19, got {self.vessel_nice!r}")
         if not (math.isfinite(self.speed) and self.speed > 0):
             raise ValueError(f"speed must be positive, got {self.speed!r}")
         for name in ("base_port", "mesh_port", "gcs_port"):
@@ -245,6 +250,8 @@ class ProcessFleet:
         self._stop = threading.Event()
         self._k = 0  # physics steps since the physics started (boot)
         self._wall0 = 0.0
+        self._cpu0 = 0.0
+        self.fleet_cpu_share: float | None = None  # this process's CPU s per wall s up to the stop
         self.mission = None  # the fleet's MissionClient: only for set-behavior events (never with external_gcs)
         self.tlog: TlogWriter | None = None
         self.server: VehicleServer | None = None
@@ -402,11 +409,11 @@ class ProcessFleet:
         output = self.out / f"vessel-{i + 1:02d}.out"
         try:
             if self.forks is not None:
-                process: Process = self.forks.spawn(command[len(o.autonomy) :], output)
+                process: Process = self.forks.spawn(command[len(o.autonomy) :], output, o.vessel_nice)
             else:
                 out = open(output, "wb")  # noqa: SIM115 - closed in stop_processes()
                 self._logs.append(out)
-                process = start_exec(command, out)
+                process = start_exec(command, out, o.vessel_nice)
         except (OSError, SupervisionError) as error:
             raise ProcessFleetError(f"cannot start the autonomy of vessel {i + 1}: {error}") from error
         self.processes.append(process)
@@ -526,6 +533,7 @@ class ProcessFleet:
     def run(self, recorder: Recorder, progress: bool = False) -> None:
         """Start everything, wait for the vehicles to be armed, run the scenario's duration (or until stopped)."""
         self._wall0 = time.monotonic()
+        self._cpu0 = time.process_time()
         self.start()
         self.wait_armed()
         self.started = True
@@ -625,6 +633,8 @@ class ProcessFleet:
         commands for up to stop_timeout_s; SIGKILL what is left; reap them all; note how long each took."""
         self._watch_processes()
         self.memory = memory_summary(self.processes)
+        wall = time.monotonic() - self._wall0
+        self.fleet_cpu_share = (time.process_time() - self._cpu0) / wall if self._wall0 and wall > 0 else None
 
         def serve(wait_s: float) -> None:
             if self.server is not None:
@@ -669,6 +679,7 @@ class ProcessFleet:
             "launcher": "fork-server" if self.forks is not None else "exec",
             **self.stop_report.summary(),
             "memory": self.memory,
+            "fleet_cpu_share": None if self.fleet_cpu_share is None else round(self.fleet_cpu_share, 4),
         }
         if self.event_delays_s:
             metrics["event_delays_s"] = self.event_delays_s

@@ -9,7 +9,8 @@ its output goes to a file, and it gets SIGTERM if its parent dies (Linux).
 
 Stopping (`stop_all`): SIGTERM to every process group, serve the vehicles while they send their last neutral
 commands and exit, SIGKILL for any left after the timeout; how long each took (wall s from the SIGTERM to
-its exit) and how many had to be killed are returned. `memory_of` reads a process's resident memory.
+its exit) and how many had to be killed are returned. `memory_summary` reads the processes' resident memory
+and CPU share.
 """
 
 from __future__ import annotations
@@ -120,10 +121,11 @@ class ForkServer:
                 self._replies.put(message)
         self._replies.put({"error": f"the fork server ended (status {self.server.wait()})"})
 
-    def spawn(self, argv: Sequence[str], out: Path) -> ForkedProcess:
-        """Fork a child running `bob-autonomy` with argv, its standard output and error to `out`."""
+    def spawn(self, argv: Sequence[str], out: Path, nice: int = 0) -> ForkedProcess:
+        """Fork a child running `bob-autonomy` with argv, its standard output and error to `out`, `nice` added
+        to its niceness."""
         assert self.server.stdin is not None
-        request = json.dumps({"argv": [str(a) for a in argv], "out": str(out)}) + "\n"
+        request = json.dumps({"argv": [str(a) for a in argv], "out": str(out), "nice": nice}) + "\n"
         try:
             self.server.stdin.write(request.encode())
             self.server.stdin.flush()
@@ -149,15 +151,21 @@ class ForkServer:
         self._reader.join(timeout_s)
 
 
-def start_exec(command: Sequence[str], out: IO[bytes]) -> subprocess.Popen:
-    """Start `command` as its own session, output to `out`, SIGTERM when this process dies (Linux)."""
+def start_exec(command: Sequence[str], out: IO[bytes], nice: int = 0) -> subprocess.Popen:
+    """Start `command` as its own session, `nice` added to its niceness, output to `out`, SIGTERM when this
+    process dies (Linux)."""
+
+    def prepare() -> None:
+        os.nice(nice)
+        die_with_parent()
+
     return subprocess.Popen(
         list(command),
         stdin=subprocess.DEVNULL,
         stdout=out,
         stderr=subprocess.STDOUT,
         start_new_session=True,
-        preexec_fn=die_with_parent,
+        preexec_fn=prepare,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
 
@@ -230,10 +238,34 @@ def memory_of(pid: int) -> dict[str, float] | None:
     return values if len(values) == 2 else None
 
 
+def cpu_share_of(pid: int) -> float | None:
+    """Share of one core a running process has used since it started (user + system CPU s per wall s); None if
+    it is gone or not Linux."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        uptime_s = float(Path("/proc/uptime").read_text().split()[0])
+    except (OSError, IndexError, ValueError):
+        return None
+    ticks = os.sysconf("SC_CLK_TCK")
+    cpu_s = (int(fields[11]) + int(fields[12])) / ticks  # utime, stime (fields 14 and 15 of stat)
+    alive_s = uptime_s - int(fields[19]) / ticks  # starttime (field 22)
+    return cpu_s / alive_s if alive_s > 0 else None
+
+
 def memory_summary(processes: Sequence[Process]) -> dict[str, float | None]:
-    """Median and maximum RSS and PSS (MiB) over the processes still running."""
-    seen = [m for m in (memory_of(p.pid) for p in processes if p.poll() is None) if m is not None]
+    """Median and maximum RSS and PSS (MiB) and CPU share (of one core, since each started) over the processes
+    still running."""
+    running = [p.pid for p in processes if p.poll() is None]
+    seen: list[dict[str, float]] = []
+    for pid in running:
+        memory, cpu = memory_of(pid), cpu_share_of(pid)
+        if memory is not None and cpu is not None:
+            seen.append({**memory, "cpu_share": cpu})
     out: dict[str, float | None] = {}
+    for name in ("cpu_share",):
+        values = [m[name] for m in seen]
+        out[f"{name}_median"] = round(statistics.median(values), 4) if values else None
+        out[f"{name}_max"] = round(max(values), 4) if values else None
     for name in ("rss", "pss"):
         values = [m[name] for m in seen]
         out[f"{name}_mib_median"] = round(statistics.median(values), 1) if values else None
