@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -49,3 +51,37 @@ def test_the_checker_sees_imports() -> None:
     # Guard against a checker that finds nothing: sitl does import the other packages.
     names = set().union(*imported_top_levels("sitl").values())
     assert {"behaviors", "bob_autonomy", "numpy", "scipy"} <= names
+
+
+def _lint_imports(cwd: Path, extra_path: Path | None = None) -> subprocess.CompletedProcess:
+    """`lint-imports` with the contracts of pyproject.toml, the packages found first on `extra_path` if given."""
+    env = dict(os.environ)
+    if extra_path is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(extra_path), env.get("PYTHONPATH", "")])
+    config = ROOT / "pyproject.toml"
+    command = [sys.executable, "-c", "from importlinter.cli import lint_imports_command; lint_imports_command()"]
+    return subprocess.run(
+        [*command, "--config", str(config), "--no-cache"], cwd=cwd, env=env, capture_output=True, text=True
+    )
+
+
+def test_the_import_linter_contracts_hold() -> None:
+    done = _lint_imports(ROOT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "3 kept, 0 broken" in done.stdout
+
+
+def test_the_import_linter_contracts_catch_a_layer_crossed(tmp_path: Path) -> None:
+    # Stand-in packages of the same names, each crossing one rule: the contracts must all break.
+    sources = {
+        "behaviors": "import scipy\n",  # behaviours: numpy only
+        "firmware_bridge": "import behaviors\nimport casadi\n",  # a sibling layer, a solver
+        "bob_autonomy": "import sitl\n",  # upwards
+        "sitl": "",
+    }
+    for name, text in sources.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text(text)
+    done = _lint_imports(tmp_path, tmp_path)
+    assert done.returncode != 0
+    assert "0 kept, 3 broken" in done.stdout, done.stdout + done.stderr
