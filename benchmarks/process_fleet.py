@@ -6,7 +6,8 @@ JSON line per run:
 
     start_s            wall s from the fleet's start until every vehicle was armed and the pre-roll done
     late_fraction      share of physics steps that began more than half a step late (and max_lag_s)
-    mpc_fallbacks      MPC fallbacks in the vessels' logs ("MPC fallback"), over_budget those over the time budget
+    mpc_fallbacks      MPC fallbacks in the vessels' logs ("MPC fallback"), over_budget those over the time budget;
+                       mpc_fallbacks_counted: the vessels' own counts (their stop summaries)
     latency_p99_ms     the vessels' control-step compute latency, p99 (median and max over vessels)
     stop_s_max/median  wall s from SIGTERM to each process's exit; killed: processes that had to be SIGKILLed
     rss/pss_mib        resident memory per autonomy process at the end (RSS counts shared pages; PSS shares them)
@@ -48,7 +49,7 @@ STOPPED = re.compile(r"stopped cleanly: (\{.*\})")
 
 def vessel_log_figures(out: Path) -> dict[str, object]:
     """MPC fallbacks and control-step latencies read from the vessels' logs."""
-    fallbacks = over_budget = 0
+    fallbacks = over_budget = counted = 0
     p99 = []
     for log in sorted(out.glob("vessel-*.log")):
         for line in log.read_text(errors="replace").splitlines():
@@ -57,11 +58,13 @@ def vessel_log_figures(out: Path) -> dict[str, object]:
                 over_budget += "time budget" in line
             elif (match := STOPPED.search(line)) is not None:
                 summary = json.loads(match.group(1))
+                counted += summary.get("mpc_fallbacks", 0)
                 if "compute_latency_s_p99" in summary:
                     p99.append(summary["compute_latency_s_p99"])
     return {
         "mpc_fallbacks": fallbacks,
         "over_budget": over_budget,
+        "mpc_fallbacks_counted": counted,  # the vessels' own count (mpc_fallbacks in their stop summaries)
         "latency_p99_ms_median": round(1e3 * statistics.median(p99), 2) if p99 else None,
         "latency_p99_ms_max": round(1e3 * max(p99), 2) if p99 else None,
     }

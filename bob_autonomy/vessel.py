@@ -193,6 +193,7 @@ class VesselStats:
     routed_to_gcs: int = 0
     routed_to_vehicle: int = 0
     estimator_resets: int = 0
+    mpc_fallbacks: int = 0  # control steps whose MPC fell back to the proportional command (bob_autonomy.mpc)
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
     gcs: dict[str, int] = field(default_factory=dict)  # the GCS component's rejected-input counters, at the end
@@ -660,6 +661,7 @@ class Vessel:
         if self.tlog is not None:
             self.tlog.close()
         self.stats.gcs = self.gcs.log_counters()
+        self.stats.mpc_fallbacks = sum(getattr(m, "fallbacks", 0) for m in getattr(self.pipeline, "mpcs", ()))
         # One JSON line that process fleets read back (sitl.vessel_logs) for metrics.json.
         logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))
         if isinstance(self.network, ThrottledMesh):  # what the mesh refused, and why (docs/mesh.md)

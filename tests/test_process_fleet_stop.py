@@ -22,6 +22,7 @@ from sitl.process_fleet import AUTONOMY_COMMAND
 from sitl.process_supervision import ForkServer, memory_of, start_exec, stop_all
 from sitl.scenario import scenario_to_toml
 from sitl.vehicle_server import vehicle_port
+from sitl.vessel_logs import stopped_summary
 from tests.test_process_fleet import SPEED, _bindable, aggregation_scenario, free_ports, gone
 
 # Real time, sockets and processes: in one xdist worker with the other process-fleet tests.
@@ -112,6 +113,7 @@ def test_sigterm_stops_every_vessel_by_itself_and_reports_stop_times_and_memory(
     assert processes["stop_s_max"] == max(processes["stop_s"])
     memory = processes["memory"]
     assert memory["measured"] == 3 and 0 < memory["pss_mib_median"] <= memory["rss_mib_median"]
-    assert all("vessel" in p.read_text() for p in out.glob("vessel-0*.log"))
+    summaries = [stopped_summary(p) for p in sorted(out.glob("vessel-0*.log"))]  # each vessel's own stop line
+    assert len(summaries) == 3 and all(s is not None and s["mpc_fallbacks"] >= 0 for s in summaries)
     assert all(gone(pid) for pid in running)
     assert all(_bindable(vehicle_port(i, base)) for i in range(3)) and _bindable(mesh)
