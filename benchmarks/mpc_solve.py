@@ -19,6 +19,8 @@ by 90 degrees (from rest, and while driving), reverses (180), and turns by 135;
 mean velocity error |v - v_desired| over the 3 s after the change, fallbacks,
 and solve time; plus --random-calls random calls for failures.
 
+Also the construction cost of each controller (solver build and warm-up, paid once per process).
+
 Prints a readable report and, last, one JSON line.
 
     python benchmarks/mpc_solve.py [--steps 2000] [--ipopt-steps 200] [--seed 7]
@@ -222,6 +224,21 @@ def ebot_random(make, calls: int, seed: int) -> int:
     return controller.fallbacks
 
 
+def construction_ms(repeats: int = 10) -> dict[str, float]:
+    """Median wall ms to construct a BuoyMpc and a DiffDriveMpc (each builds its solver and warms it up): what
+    every autonomy process pays once at start (and a buoy again when the autopilot reports its top speed)."""
+    out = {}
+    for name, make in (("buoy", lambda: BuoyMpc(dt_s=0.1)), ("ebot", lambda: DiffDriveMpc())):
+        make()  # the first loads casadi's plugin libraries
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            make()
+            times.append(time.perf_counter() - start)
+        out[name] = 1e3 * float(np.median(times))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
@@ -230,6 +247,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
 
+    build_ms = construction_ms()
+    print(
+        f"construction (formulate, build the casadi Functions, one warm-up solve), median of 10: buoy "
+        f"{build_ms['buoy']:.1f} ms, eBot {build_ms['ebot']:.1f} ms (once per vessel: no cache on disk needed)"
+    )
     run = run_buoy(args.steps, args.seed)
     times_ms = 1e3 * run["times"]
     solver_ms = 1e3 * run["solver_times"]
@@ -321,6 +343,7 @@ def main() -> None:
                 "ipopt_over_qp": round(ipopt_median / median, 1),
                 "ipopt_plan_gap_n": ipopt_gap,
                 "ebot": ebot,
+                "construction_ms": {k: round(v, 2) for k, v in build_ms.items()},
             }
         )
     )
