@@ -11,15 +11,17 @@ events, the recording and the metrics.
 A run: build the scenario's world, start poses and physics exactly as the
 lockstep fleet does (same seeds, same draws); bind the vehicles' ports and the
 relay's; start the autonomy processes (each in its own session, output to
-`vessel-NN.out`, log to `vessel-NN.log`); keep stepping with the actuators held
+`vessel-NN.out`, log to `vessel-NN.log`; forked from one pre-loaded `bob-autonomy
+fork-server`, `sitl.process_supervision`); keep stepping with the actuators held
 at zero until every vehicle has been armed by its autonomy (a clear error
 naming the vessel and quoting its log if one never is); then run the scenario
 for its duration: each step applies what each vehicle was last commanded (its
 failsafe included), steps the physics, sends the sensors' telemetry, records a
 frame when due; between steps it answers the vehicles' peers and relays mesh
-packets. At the end, on Ctrl-C (SIGINT) or SIGTERM: SIGTERM to every autonomy
-process group, up to `stop_timeout_s` for them to send their neutral commands
-and exit, SIGKILL for any left, every socket closed; then the outputs of a
+packets. At the end, on Ctrl-C (SIGINT) or SIGTERM: the processes' memory and
+CPU share noted, SIGTERM to every autonomy process group, up to `stop_timeout_s`
+for them to send their neutral commands and exit (how long each took goes into
+metrics.json), SIGKILL for any left, every socket closed; then the outputs of a
 lockstep run (trajectory.csv, metrics.json from the same metrics functions,
 figures, scenario.toml) plus `vehicles.tlog` and the vessels' logs, all or
 nothing (`sitl.runner.write_atomically`).
