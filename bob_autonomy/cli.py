@@ -383,7 +383,7 @@ def _forked_vessel(argv: list[str], out_path: str, nice: int, request_fd: int, r
         os.close(request_fd)
         os.close(reply_fd)
         os.setsid()
-        os.nice(nice)
+        lower_priority(nice)
         die_with_parent()
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGCHLD):
             signal.signal(sig, signal.SIG_DFL)
@@ -467,6 +467,16 @@ def serve_forks(request_fd: int = 0, reply_fd: int = 1) -> int:
             children.add(pid)
             reply({"pid": pid})
     return 0
+
+
+def lower_priority(nice: int) -> None:
+    """Add `nice` (0..19) to this process's niceness, and to its session's scheduling group where Linux groups
+    sessions (sched_autogroup: CPU is shared between sessions first, so niceness alone does not count against
+    processes of other sessions, such as the simulator that started this one)."""
+    if nice:
+        os.nice(nice)
+        with contextlib.suppress(OSError), open("/proc/self/autogroup", "w") as autogroup:
+            autogroup.write(str(nice))
 
 
 def die_with_parent() -> None:

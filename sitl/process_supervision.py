@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Protocol
 
-from bob_autonomy.cli import die_with_parent
+from bob_autonomy.cli import die_with_parent, lower_priority
 
 SPAWN_TIMEOUT_S = 60.0  # wall s for the fork server to answer a request (the first waits for its imports)
 
@@ -155,8 +155,8 @@ def start_exec(command: Sequence[str], out: IO[bytes], nice: int = 0) -> subproc
     """Start `command` as its own session, `nice` added to its niceness, output to `out`, SIGTERM when this
     process dies (Linux)."""
 
-    def prepare() -> None:
-        os.nice(nice)
+    def prepare() -> None:  # after setsid: the new session's own scheduling group
+        lower_priority(nice)
         die_with_parent()
 
     return subprocess.Popen(
