@@ -10,6 +10,7 @@ stop times and the vessels' memory in metrics.json, and nothing left running.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -19,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from sitl.process_fleet import AUTONOMY_COMMAND
-from sitl.process_supervision import ForkServer, memory_of, start_exec, stop_all
+from sitl.process_supervision import ForkServer, SupervisionError, memory_of, start_exec, stop_all
 from sitl.scenario import scenario_to_toml
 from sitl.vehicle_server import vehicle_port
 from sitl.vessel_logs import stopped_summary
@@ -36,6 +37,8 @@ def test_fork_server_runs_bob_autonomy_children_and_reports_their_exit(tmp_path:
             listing = forks.spawn(["behaviors"], tmp_path / "behaviors.out")
             bad = forks.spawn(["run", "--system-id", "1"], tmp_path / "bad.out")  # no --vehicle: exit 2
             assert listing.wait(30.0) == 0 and bad.wait(30.0) == 2
+            with pytest.raises(SupervisionError, match=r"nice must be 0\.\.19, got 25"):
+                forks.spawn(["behaviors"], tmp_path / "never.out", nice=25)
             assert listing.exited_at is not None and listing.pid != bad.pid
         finally:
             forks.close()
@@ -66,6 +69,17 @@ def test_stop_all_times_each_stop_and_kills_what_ignores_sigterm(tmp_path: Path)
     assert report.stop_s[0] is not None and 0.0 <= report.stop_s[0] < 1.0 and report.stop_s[1] is None
     assert served and all(gone(p.pid) for p in processes)
     assert report.summary()["stop_s_max"] == report.summary()["stop_s_median"] == round(report.stop_s[0], 3)
+
+
+def test_vessels_run_at_a_lower_priority_in_their_own_session(tmp_path: Path) -> None:
+    report = "import os\ngroup = '/proc/self/autogroup'\n"
+    report += "print(os.nice(0), os.getsid(0) == os.getpid(), open(group).read() if os.path.exists(group) else '-')"
+    with open(tmp_path / "nice.out", "wb") as out:
+        assert start_exec([sys.executable, "-c", report], out, nice=3).wait(30.0) == 0
+    niceness, own_session, autogroup = (tmp_path / "nice.out").read_text().split(maxsplit=2)
+    assert int(niceness) == os.nice(0) + 3 and own_session == "True"
+    if "nice" in autogroup:  # Linux with sched_autogroup: the session's group is lowered too
+        assert autogroup.split()[-1] == "3"
 
 
 def descendants(pid: int) -> list[int]:
