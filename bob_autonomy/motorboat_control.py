@@ -21,15 +21,17 @@ estimator's, a known disturbance): the boat must point along d and move at |d|.
     min(|d|, turn_speed) (turn_speed = `turn_speed_fraction` of the model's top
     speed) while turning: a turn needs way on, so a boat whose wish is well
     behind it and fast turns around in a circle of about its turning radius;
-  * astern: a wish behind the boat (more than 110 deg off the bow) no faster
+  * astern: a wish behind the boat (more than 90 deg off the bow) no faster
     than `reverse_speed_mps` (1 m/s: the behaviours' usual top wish) is met
     going astern, the stern pointing along d (e0 measured from the stern,
     U = -|d| cos(e0)): a boat backs away from what is in front of it rather
-    than circling through its neighbours (in leader-follower-motorboats the
-    closest approach in the first 500 s went from 0.3 m with 0.5 m/s to 1.04 m);
+    than circling through its neighbours, or turning across one beside it;
     a faster wish behind, a far goal, is met by turning round;
   * hold: when |d| is under `hold_speed_mps` (with hysteresis to 1.5 times that)
-    the boat has nothing useful to do: throttle 0, steering 0, it drifts. This
+    the boat has nothing useful to do: steering 0, throttle 0 once its way is off
+    (a boat still making way through the water faster than hold_speed_mps is
+    braked, astern thrust against its surge: coasting on into the boat ahead is
+    what a skipper avoids), then it drifts. This
     is how a motorboat "holds" a spot: it drifts near it, or orbits it when the
     drift is stronger than hold_speed_mps (it points into the drift and turns
     back whenever it overshoots).
@@ -80,7 +82,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from bob_autonomy.mpc import _BufferedCall, _conic, _over_budget, _SolveError, default_qp_plugin
+from bob_autonomy.mpc import _BufferedCall, _conic, _cpu_over_budget, _SolveError, default_qp_plugin
 from bob_autonomy.simple_estimator import FloatArray
 
 logger = logging.getLogger("bob_autonomy.motorboat_control")
@@ -88,8 +90,14 @@ NOMINAL_TOP_SPEED_MPS = 2.0
 MIN_TURN_SPEED_MPS = 0.1  # the speed the yaw model is linearised at, at least (steering turns a boat under way)
 # Below this wished speed through the water a boat holds (drifts). Absolute, not a fraction of the top speed: the
 # behaviours wish speeds of about 1 m/s whatever the boat (ArduPilot's SITL motorboat goes 10 m/s and more).
-HOLD_SPEED_MPS = 0.1
+# 0.2 m/s: in a crowd of boats (leader-follower-motorboats) the wishes of a settled group churn at 0.1-0.2 m/s; a boat
+# that answers them turns on its turning circle through its neighbours. Holding there (0.1 m/s) left 0.1-0.5 m
+# between boats; with 0.2 (and the two choices below) about 1 m.
+HOLD_SPEED_MPS = 0.2
+HOLD_HYSTERESIS = 1.5  # a holding boat gets under way again above this times hold_speed_mps (1.25: closer calls)
+TURN_SPEED_FRACTION = 0.1  # the least speed while turning, of the top speed (0.25 swept boats into neighbours faster)
 REVERSE_SPEED_MPS = 1.0  # a wish behind the boat up to this speed through the water is met astern
+ASTERN_FROM_DEG, ASTERN_UNTIL_DEG = 90.0, 70.0  # a wish more than this off the bow starts (keeps) going astern
 SPEED_CAP_FACTOR, SPEED_CAP_MARGIN_MPS = 1.5, 0.2  # MotorboatModel.throttle_cap
 
 
@@ -212,10 +220,10 @@ class References:
     """Heading error and speed references from the wish, the drift and the pose (module docstring), with the
     hysteresis state of one boat (hold, astern, side of the last big turn).
 
-    reverse_speed_mps: a wish through the water behind the boat (more than 110 deg off its bow) and no faster
-    than this is met going astern, stern first (0: never); astern it stays while the wish is more than 70 deg
-    off the bow and no faster than 1.5 times this. In a crowd this backs a boat away from the neighbour in
-    front instead of sending it round a circle through the others.
+    reverse_speed_mps: a wish through the water behind the boat (more than ASTERN_FROM_DEG off its bow) and no
+    faster than this is met going astern, stern first (0: never); astern it stays while the wish is more than
+    ASTERN_UNTIL_DEG off the bow and no faster than 1.5 times this. In a crowd this backs a boat away from the
+    neighbour in front or beside it instead of sending it round a circle through the others.
     """
 
     def __init__(
@@ -236,16 +244,16 @@ class References:
         """(heading error e0 rad, speed reference U m/s (negative: astern), holding)."""
         dx, dy = desired[0] - water[0], desired[1] - water[1]
         speed = math.hypot(dx, dy)
-        threshold = self.hold_speed_mps * (1.5 if self.holding else 1.0)
+        threshold = self.hold_speed_mps * (HOLD_HYSTERESIS if self.holding else 1.0)
         self.holding = speed < threshold
         if self.holding:
             self.turn_side, self.astern = 0.0, False
             return 0.0, 0.0, True
         error = math.remainder(math.atan2(dy, dx) - heading, 2.0 * math.pi)
         if self.astern:
-            self.astern = speed <= 1.5 * self.reverse_speed_mps and abs(error) > math.radians(70.0)
+            self.astern = speed <= 1.5 * self.reverse_speed_mps and abs(error) > math.radians(ASTERN_UNTIL_DEG)
         else:
-            self.astern = speed <= self.reverse_speed_mps and abs(error) > math.radians(110.0)
+            self.astern = speed <= self.reverse_speed_mps and abs(error) > math.radians(ASTERN_FROM_DEG)
         if self.astern:  # the stern points along the wish
             self.turn_side = 0.0
             stern = math.remainder(error - math.pi, 2.0 * math.pi)
@@ -279,7 +287,7 @@ class MotorboatController:
         yaw_damping: float = 1.0,
         speed_gain_per_s: float = 1.0,
         hold_speed_mps: float | None = None,
-        turn_speed_fraction: float = 0.25,
+        turn_speed_fraction: float = TURN_SPEED_FRACTION,
         min_throttle: float = -1.0,
         reverse_speed_mps: float = REVERSE_SPEED_MPS,
     ) -> None:
@@ -298,6 +306,16 @@ class MotorboatController:
         cap = m.throttle_cap(reference)
         low = -min(-self.min_throttle * m.reverse_thrust_fraction * limit, cap)
         return low, min(limit, cap)
+
+    def brake(self, surge: float, limit: float) -> float:
+        """The throttle that stops a holding boat still making way: thrust against the surge (m/s) at
+        speed_gain_per_s, at most full astern (or ahead, if it drifts backwards), none below the hold speed."""
+        if abs(surge) <= self.references.hold_speed_mps or self.min_throttle >= 0.0:
+            return 0.0
+        m = self.model
+        wished = -m.mass_kg * self.speed_gain_per_s * surge / m.max_thrust_n
+        most = m.reverse_thrust_fraction * limit * -self.min_throttle if surge > 0 else limit
+        return m.throttle_of(min(max(wished, -most), most))
 
     def law(self, error: float, reference: float, surge: float, yaw_rate: float, limit: float) -> tuple[float, float]:
         """(throttle, steering) for heading error `error` rad, speed reference and surge m/s, yaw rate rad/s and
@@ -324,9 +342,9 @@ class MotorboatController:
         (rad) and yaw rate (rad/s); `limit`: the throttle available (a weak battery gives less)."""
         d, v, w, psi = _pair(desired), _pair(velocity), _pair(water), _finite(heading)
         error, reference, holding = self.references(d, w, psi)
-        if holding:
-            return MotorboatCommand(0.0, 0.0, True, False, 0.0, "hold")
         surge = math.cos(psi) * (v[0] - w[0]) + math.sin(psi) * (v[1] - w[1])
+        if holding:
+            return MotorboatCommand(self.brake(surge, max(0.0, _finite(limit))), 0.0, True, False, 0.0, "hold")
         throttle, steering = self.law(error, reference, surge, _finite(yaw_rate), max(0.0, _finite(limit)))
         return MotorboatCommand(throttle, steering, True, False, 0.0, "simple", error, reference)
 
@@ -337,10 +355,10 @@ class MotorboatMpc:
     model: the nominal MotorboatModel. step_s, horizon: the prediction's step (s) and length (steps).
     heading_weight (per rad^2), speed_weight (per (speed / top speed)^2), steering_weight, throttle_change_weight,
     steering_change_weight: cost weights per step. hold_speed_mps: below this wished speed through the water the
-    boat holds (default HOLD_SPEED_MPS, 0.1 m/s); turn_speed_fraction: the least speed while turning, as a
+    boat holds (default HOLD_SPEED_MPS); turn_speed_fraction: the least speed while turning, as a
     fraction of top speed. min_throttle: the lowest throttle (-1, the default: full astern; 0: never astern).
     reverse_speed_mps: see References. solver: casadi conic plugin.
-    time_budget_s: a solve slower than this is discarded for the fallback, s.
+    time_budget_s: a solve using more CPU time than this is discarded for the fallback, s.
 
     Attributes: solves, fallbacks (counts), last_plan ((horizon, 2) throttle and steering of the last QP, or None).
     """
@@ -356,7 +374,7 @@ class MotorboatMpc:
         throttle_change_weight: float = 0.1,
         steering_change_weight: float = 0.05,
         hold_speed_mps: float | None = None,
-        turn_speed_fraction: float = 0.25,
+        turn_speed_fraction: float = TURN_SPEED_FRACTION,
         min_throttle: float = -1.0,
         reverse_speed_mps: float = REVERSE_SPEED_MPS,
         solver: str | None = None,
@@ -448,22 +466,23 @@ class MotorboatMpc:
         error, reference, holding = self.references(d, w, psi)
         u0 = math.cos(psi) * (v[0] - w[0]) + math.sin(psi) * (v[1] - w[1])
         if holding or limit <= 1e-9:
-            self._previous = (0.0, self._slewed(0.0))
+            throttle = self.fallback.brake(u0, limit)
+            self._previous = (self.model.fraction_of(throttle), self._slewed(0.0))
             self.last_plan = None
-            return MotorboatCommand(0.0, self._previous[1], True, False, 0.0, "hold")
+            return MotorboatCommand(throttle, self._previous[1], True, False, 0.0, "hold")
         bounds = self.fallback.fraction_bounds(reference, limit)
         self.solves += 1
         ok, fallback, status = True, False, "optimal"
         if self.last_plan is None:  # no plan to linearise about: the speed now, steering straight
             self._bar[:] = u0
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.thread_time()
         try:
             plan = self._solve_qp(u0, r0, error, reference, bounds)
             elapsed = time.perf_counter() - start
             if not np.isfinite(plan).all():
                 raise _SolveError("non-finite solution")
-            if elapsed > self.time_budget_s:
-                raise _SolveError(_over_budget(elapsed, self.time_budget_s))
+            # CPU time, as the buoy MPC: on a busy computer a quick solve can wait for the processor (wall time).
+            _cpu_over_budget(time.thread_time() - cpu, self.time_budget_s)
             fraction, steering = float(plan[0, 0]), float(plan[0, 1])
             self.last_plan = plan
             self._bar[:] = np.asarray(self._speeds(plan[:, 0], u0), dtype=float).ravel()

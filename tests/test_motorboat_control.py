@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from bob_autonomy.motorboat_control import HOLD_SPEED_MPS, MotorboatController, MotorboatModel, MotorboatMpc
+from bob_autonomy.motorboat_control import (
+    HOLD_SPEED_MPS,
+    TURN_SPEED_FRACTION,
+    MotorboatController,
+    MotorboatModel,
+    MotorboatMpc,
+)
 from sitl.motorboat import MotorboatDynamics, params_for
 
 TOP_SPEED, RADIUS = 2.0, 3.0
@@ -60,7 +66,7 @@ def test_a_wish_to_the_left_steers_left_and_a_wish_behind_turns_at_steerage_spee
     mpc.reset()
     behind = mpc.solve(np.array([-1.5, 0.0]), np.zeros(2), np.zeros(2), 0.0)  # faster than REVERSE_SPEED_MPS
     assert behind.throttle > 0.0 and abs(behind.steering) > 0.5
-    assert behind.speed_ref_mps == pytest.approx(0.25 * MODEL.top_speed_mps)  # turns, never stops to think
+    assert behind.speed_ref_mps == pytest.approx(TURN_SPEED_FRACTION * MODEL.top_speed_mps)  # turns, never stops
 
 
 def test_a_slow_wish_behind_is_met_astern_and_astern_can_be_forbidden() -> None:
@@ -81,11 +87,50 @@ def test_a_slow_wish_behind_is_met_astern_and_astern_can_be_forbidden() -> None:
 
 def test_the_drift_is_a_known_disturbance_pointing_into_it_holds_ground() -> None:
     mpc = MotorboatMpc(MODEL)
-    # Wished still over ground in a 0.3 m/s current setting west: point east (into it) at 0.3 m/s through the water.
-    for _ in range(20):  # still over ground, so 0.3 m/s through the water; the throttle settles
-        cmd = mpc.solve(np.zeros(2), np.zeros(2), np.array([-0.3, 0.0]), 0.0)
-    assert cmd.heading_error_rad == pytest.approx(0.0) and cmd.speed_ref_mps == pytest.approx(0.3)
-    assert cmd.throttle == pytest.approx(MODEL.drag_n(0.3) / MODEL.max_thrust_n, rel=0.05)
+    # Wished still over ground in a 0.4 m/s current setting west: point east (into it) at 0.4 m/s through the water
+    # (a current under 1.5 HOLD_SPEED_MPS is drifted with: the boat holds, it only goes back when its wish grows).
+    current = 0.4
+    assert current > 1.5 * HOLD_SPEED_MPS
+    for _ in range(20):  # still over ground, so 0.4 m/s through the water; the throttle settles
+        cmd = mpc.solve(np.zeros(2), np.zeros(2), np.array([-current, 0.0]), 0.0)
+    assert cmd.heading_error_rad == pytest.approx(0.0) and cmd.speed_ref_mps == pytest.approx(current)
+    assert cmd.throttle == pytest.approx(MODEL.drag_n(current) / MODEL.max_thrust_n, rel=0.05)
+
+
+@pytest.mark.parametrize("controller", [MotorboatMpc(MODEL), MotorboatController(MODEL)], ids=["mpc", "simple"])
+def test_a_boat_told_to_hold_while_making_way_brakes_astern_then_drifts(controller) -> None:
+    solve = controller.solve if isinstance(controller, MotorboatMpc) else controller.command
+    moving = solve(np.zeros(2), np.array([0.8, 0.0]), np.zeros(2), 0.0)  # 0.8 m/s ahead, wish: nothing
+    assert moving.speed_ref_mps == 0.0 and moving.throttle < -0.5 and moving.steering == 0.0
+    backing = solve(np.zeros(2), np.array([-0.5, 0.0]), np.zeros(2), 0.0)  # drifting astern through the water
+    assert backing.throttle > 0.0
+    # Way off, or the drift carries it at the wished speed (no speed through the water): throttle 0, it drifts.
+    assert solve(np.zeros(2), np.array([0.1, 0.0]), np.zeros(2), 0.0).throttle == 0.0
+    assert solve(np.zeros(2), np.array([0.3, 0.0]), np.array([0.3, 0.0]), 0.0).throttle == 0.0
+
+
+def _stopping_distance_m(controller) -> float:
+    """Metres the simulated boat travels from steady 0.8 m/s (east) until slower than 0.1 m/s, told to hold."""
+    boat = MotorboatDynamics(params_for(TOP_SPEED, RADIUS), np.zeros((1, 2)), np.zeros(1), np.random.default_rng(3))
+    for _ in range(100):  # 20 s at a throttle giving about 0.8 m/s
+        boat.step(np.array([[0.25, 0.0]]), 0.2)
+    assert 0.6 < boat.velocity_mps[0, 0] < 1.0
+    start = boat.position_m[0].copy()
+    while np.hypot(*boat.velocity_mps[0]) > 0.1:
+        if controller is None:
+            throttle = 0.0
+        else:
+            state = (np.zeros(2), boat.velocity_mps[0], np.zeros(2), boat.heading_rad[0], boat.yaw_rate_radps[0])
+            control = controller.solve if isinstance(controller, MotorboatMpc) else controller.command
+            throttle = control(*state).throttle
+        boat.step(np.array([[throttle, 0.0]]), 0.2)
+    return float(np.hypot(*(boat.position_m[0] - start)))
+
+
+def test_braking_stops_a_boat_in_under_half_the_distance_it_coasts() -> None:
+    coasting = _stopping_distance_m(None)
+    for controller in (MotorboatMpc(MODEL), MotorboatController(MODEL)):
+        assert _stopping_distance_m(controller) < 0.5 * coasting
 
 
 def test_a_small_wish_holds_with_hysteresis_and_a_weak_battery_limits_the_throttle() -> None:
@@ -100,7 +145,7 @@ def test_a_small_wish_holds_with_hysteresis_and_a_weak_battery_limits_the_thrott
 
 def test_a_failed_or_late_solve_falls_back_counted_and_bad_inputs_never_escape() -> None:
     mpc = MotorboatMpc(MODEL, time_budget_s=0.0)  # every solve is late
-    cmd = mpc.solve(np.array([0.0, 1.0]), np.array([0.5, 0.0]), np.zeros(2), 0.0, 0.0)
+    cmd = mpc.solve(np.array([0.0, 1.0]), np.array([0.1, 0.0]), np.zeros(2), 0.0, 0.0)
     assert cmd.fallback and not cmd.ok and mpc.fallbacks == 1 and "time budget" in cmd.status
     assert cmd.steering < 0.0 and 0.0 < cmd.throttle <= 1.0
     mpc = MotorboatMpc(MODEL)
