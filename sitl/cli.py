@@ -86,6 +86,14 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="leave --gcs-port to your mission script (bob_autonomy.mission); the scenario may not have events",
     )
+    fleet.add_argument(
+        "--vessel-nice",
+        type=int,
+        default=0,
+        metavar="N",
+        help="niceness 0..19 of the autonomy processes above the fleet's: with more vessels than the cores can run, "
+        "the world keeps wall time and the vessels lag (default 0)",
+    )
     fleet.add_argument("--quiet", action="store_true", help="no progress bar")
     fleet.add_argument("--force", action="store_true", help=FORCE_HELP)
     sweep = sub.add_parser(
@@ -231,6 +239,7 @@ def _fleet(args: argparse.Namespace) -> int:
             mesh_port=args.mesh_port,
             gcs_port=args.gcs_port,
             external_gcs=args.external_gcs,
+            vessel_nice=args.vessel_nice,
         )
     except (ScenarioError, ValueError) as error:
         print(f"bob-sitl: {error}", file=sys.stderr)

@@ -298,3 +298,10 @@ def test_console_script_list(tmp_path: Path) -> None:
     names = [line.split()[0] for line in done.stdout.splitlines()]
     assert names == list(packaged_scenarios())
     assert list(tmp_path.iterdir()) == []
+
+
+def test_fleet_vessel_niceness_out_of_range_is_refused_before_anything_runs(capsys, tmp_path: Path) -> None:
+    out = tmp_path / "never"
+    assert main(["fleet", "aggregation", "--processes", "--vessel-nice", "20", "--out", str(out)]) == 2
+    assert "vessel_nice must be 0..19, got 20" in capsys.readouterr().err
+    assert not out.exists()
