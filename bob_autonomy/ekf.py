@@ -142,6 +142,7 @@ Robustness (both filters)
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -149,7 +150,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from bob_autonomy.simple_estimator import FloatArray, IntArray, PoseEstimate
@@ -179,12 +179,20 @@ def _finite(*values: Any) -> bool:
     return True
 
 
-class _ModelEkf(ExtendedKalmanFilter):
+@functools.cache
+def _model_ekf_class() -> type:
     """filterpy's EKF with a nonlinear transition: the caller sets F (the Jacobian) and Q, then calls
-    predict(u=x_next) with the mean propagated by the model; filterpy does P = F P F^T + Q."""
+    predict(u=x_next) with the mean propagated by the model; filterpy does P = F P F^T + Q.
 
-    def predict_x(self, u: Any = 0) -> None:
-        self.x = u
+    Built on first use: importing filterpy pulls in scipy.stats (about 0.5 s), which only the eBot filter needs;
+    every `bob-autonomy` start and every buoy or motorboat vessel is spared it."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    class _ModelEkf(ExtendedKalmanFilter):
+        def predict_x(self, u: Any = 0) -> None:
+            self.x = u
+
+    return _ModelEkf
 
 
 @dataclass
@@ -203,7 +211,7 @@ class _TimedEkf:
     replay log (see the module docstring). Subclasses provide _handle, _snapshot and _restore."""
 
     def __init__(self, dim_x: int, replay_window_s: float, gate_reset_count: int) -> None:
-        self.kf = _ModelEkf(dim_x=dim_x, dim_z=1)
+        self.kf = _model_ekf_class()(dim_x=dim_x, dim_z=1)
         self.t_s: float | None = None  # the filter's time: that of its latest reading
         self.rejected = 0  # non-finite readings
         self.late = 0  # readings older than the replay window
