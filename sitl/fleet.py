@@ -59,6 +59,9 @@ def initial_poses(scenario: Scenario, world: World, rng: np.random.Generator) ->
     return np.concatenate(positions), np.concatenate(headings)
 
 
+START_DRAWS = 20  # random start draws tried before a start box counts as too small (_sample_separated)
+
+
 def lattice_sites(n: int, center, spacing_m: float, kind: str = "triangular", angle_deg: float = 0.0) -> FloatArray:
     """(n, 2) the n sites of a regular lattice nearest `center` (m), one of them at `center`.
 
@@ -83,20 +86,28 @@ def lattice_sites(n: int, center, spacing_m: float, kind: str = "triangular", an
 
 
 def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.random.Generator) -> FloatArray:
-    """n points uniform in a box, inside the rooms, at least `separation` m apart (rejection)."""
-    points: list[FloatArray] = []
-    for _ in range(200 * n):
+    """n points uniform in a box, inside the rooms, at least `separation` m apart (rejection).
+
+    Points are added one by one (200 n candidates); a draw that jams (no room left for the next point, as 16
+    points 80 m apart in a 360 m box can at some seeds) starts again from scratch with the same generator, up
+    to START_DRAWS times: a draw that succeeds at the first try is unchanged."""
+    for _ in range(START_DRAWS):
+        points: list[FloatArray] = []
+        for _ in range(200 * n):
+            if len(points) == n:
+                break
+            candidate = rng.uniform(lo, hi)
+            if not world.inside_rooms(candidate[None])[0]:
+                continue
+            if separation and points and np.min(np.hypot(*(np.array(points) - candidate).T)) < separation:
+                continue
+            points.append(candidate)
         if len(points) == n:
-            break
-        candidate = rng.uniform(lo, hi)
-        if not world.inside_rooms(candidate[None])[0]:
-            continue
-        if separation and points and np.min(np.hypot(*(np.array(points) - candidate).T)) < separation:
-            continue
-        points.append(candidate)
-    if len(points) < n:
-        raise ScenarioError(f"cannot place {n} agents {separation} m apart in box {lo}..{hi}")
-    return np.array(points)
+            return np.array(points)
+    raise ScenarioError(
+        f"cannot place {n} agents {separation} m apart in box {lo}..{hi} ({START_DRAWS} tries): "
+        "lower min_separation_m, enlarge the start box or start fewer agents there"
+    )
 
 
 def motorboat_params(scenario: Scenario) -> list:
