@@ -22,6 +22,7 @@ from bob_autonomy.vehicle_link import BUOY, VehicleLink
 from firmware_bridge.commands import normalised_to_pwm, rc_override
 from firmware_bridge.readings import SensorReadings
 from sitl.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
+from sitl.reading_batches import merge_by_round
 
 FloatArray = np.ndarray
 
@@ -108,11 +109,9 @@ class MavlinkTransport:
         vessels decode from it."""
         frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
         encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick)
-        decoded: list[object] = []
-        for link, data in zip(self.links, frames, strict=True):
-            if data:
-                decoded += link.receive(bytes(data))
-        return decoded
+        # Decoded vehicle by vehicle, fused as one batch per kind and round (sitl.reading_batches).
+        decoded = [link.receive(bytes(data)) if data else [] for link, data in zip(self.links, frames, strict=True)]
+        return merge_by_round(decoded)
 
     def senses(
         self,
