@@ -580,25 +580,30 @@ def fleet_children(pid: int) -> list[int]:
     return children
 
 
-def test_ctrl_c_stops_the_fleet_cleanly_and_writes_its_outputs(tmp_path: Path) -> None:
-    base, (mesh, gcs) = free_ports(2, extra=2)
-    path = tmp_path / "two.toml"
-    scenario = aggregation_scenario(count=2, duration_s=600.0, switch=False)
-    path.write_text(scenario_to_toml(scenario))
+def start_fleet_cli(tmp_path: Path, count: int) -> tuple[subprocess.Popen, Path, int, int, bool]:
+    """`bob-sitl fleet --processes` on `count` aggregation vessels (600 s, no p0 switch) on free ports, as a
+    child process: (process, output directory, base port, mesh port, whether every vessel logged that it armed
+    within 60 s). The caller stops it."""
+    base, (mesh, gcs) = free_ports(count, extra=2)
+    path = tmp_path / "fleet.toml"
+    path.write_text(scenario_to_toml(aggregation_scenario(count=count, duration_s=600.0, switch=False)))
     out = tmp_path / "out"
     command = [sys.executable, "-m", "sitl.cli", "fleet", str(path), "--processes", "--speed", str(SPEED)]
     command += ["--out", str(out), "--quiet", "--base-port", str(base), "--mesh-port", str(mesh)]
     command += ["--gcs-port", str(gcs)]
     cli = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline and cli.poll() is None:
+        logs = list(tmp_path.glob(".out.*/vessel-0*.log"))
+        if len(logs) == count and all("armed" in p.read_text() for p in logs):
+            return cli, out, base, mesh, True
+        time.sleep(0.2)
+    return cli, out, base, mesh, False
+
+
+def test_ctrl_c_stops_the_fleet_cleanly_and_writes_its_outputs(tmp_path: Path) -> None:
+    cli, out, base, mesh, started = start_fleet_cli(tmp_path, 2)
     try:
-        deadline = time.monotonic() + 60.0
-        started = False
-        while time.monotonic() < deadline and cli.poll() is None:
-            logs = list(tmp_path.glob(".out.*/vessel-0*.log"))
-            if len(logs) == 2 and all("armed" in p.read_text() for p in logs):
-                started = True
-                break
-            time.sleep(0.2)
         assert started, cli.stderr.read() if cli.poll() is not None else "vessels did not arm"
         time.sleep(1.0)
         forks = fleet_children(cli.pid)  # the fork server, whose children are the vessels

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -21,10 +20,9 @@ import pytest
 
 from sitl.process_fleet import AUTONOMY_COMMAND
 from sitl.process_supervision import ForkServer, SupervisionError, memory_of, start_exec, stop_all
-from sitl.scenario import scenario_to_toml
 from sitl.vehicle_server import vehicle_port
 from sitl.vessel_logs import stopped_summary
-from tests.test_process_fleet import SPEED, _bindable, aggregation_scenario, free_ports, gone
+from tests.test_process_fleet import _bindable, gone, start_fleet_cli
 
 # Real time, sockets and processes: in one xdist worker with the other process-fleet tests.
 pytestmark = pytest.mark.xdist_group("realtime")
@@ -95,21 +93,8 @@ def descendants(pid: int) -> list[int]:
 
 
 def test_sigterm_stops_every_vessel_by_itself_and_reports_stop_times_and_memory(tmp_path: Path) -> None:
-    base, (mesh, gcs) = free_ports(3, extra=2)
-    path = tmp_path / "three.toml"
-    path.write_text(scenario_to_toml(aggregation_scenario(count=3, duration_s=600.0, switch=False)))
-    out = tmp_path / "out"
-    command = [sys.executable, "-m", "sitl.cli", "fleet", str(path), "--processes", "--speed", str(SPEED)]
-    command += ["--out", str(out), "--quiet", "--base-port", str(base), "--mesh-port", str(mesh)]
-    command += ["--gcs-port", str(gcs)]
-    cli = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cli, out, base, mesh, _ = start_fleet_cli(tmp_path, 3)
     try:
-        deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline and cli.poll() is None:
-            logs = list(tmp_path.glob(".out.*/vessel-0*.log"))
-            if len(logs) == 3 and all("armed" in p.read_text() for p in logs):
-                break
-            time.sleep(0.2)
         assert cli.poll() is None, cli.stderr.read() if cli.stderr else ""
         time.sleep(1.0)
         running = descendants(cli.pid)
