@@ -22,6 +22,7 @@ from collections.abc import Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from firmware_bridge.frames import pack_frame
 from firmware_bridge.rc_channels import RcChannelRange
 
 PWM_NEUTRAL = 1500
@@ -46,6 +47,16 @@ class Encoder:
     def pack(self, message) -> bytes:
         data = bytes(message.pack(self.mav))
         self.mav.seq = (self.mav.seq + 1) % 256
+        return data
+
+    def frame(self, message_class: type, *args) -> bytes:
+        """The frame `pack(mav.<name>_encode(*args))` gives, without building the message object
+        (`firmware_bridge.frames`: the telemetry hot path); signed links take pymavlink's path."""
+        mav = self.mav
+        if mav.signing.sign_outgoing:
+            return self.pack(message_class(*args))
+        data = pack_frame(message_class, args, mav.seq, mav.srcSystem, mav.srcComponent)
+        mav.seq = (mav.seq + 1) % 256
         return data
 
 

@@ -67,10 +67,14 @@ class TelemetryEncoder:
             base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
         if state is None:
             state = mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
-        message = self.mav.heartbeat_encode(
-            mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base_mode & 0xFF, int(custom_mode), state
+        return self.encoder.frame(
+            mavlink.MAVLink_heartbeat_message,
+            mav_type,
+            mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            base_mode & 0xFF,
+            int(custom_mode),
+            state,
         )
-        return self.encoder.pack(message)
 
     def gps_raw_int(
         self,
@@ -89,7 +93,8 @@ class TelemetryEncoder:
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
             vel = min(UINT16_MAX - 1, round(math.hypot(east, north) * 100.0))
             cog = round(math.degrees(math.atan2(east, north)) * 100.0) % 36000
-        message = self.mav.gps_raw_int_encode(
+        return self.encoder.frame(
+            mavlink.MAVLink_gps_raw_int_message,
             _usec(t_s),
             fix_type,
             round(lat_deg * 1e7),
@@ -101,7 +106,6 @@ class TelemetryEncoder:
             cog,
             satellites,
         )
-        return self.encoder.pack(message)
 
     def global_position_int(
         self,
@@ -120,10 +124,18 @@ class TelemetryEncoder:
         hdg = UINT16_MAX
         if heading_rad is not None and math.isfinite(heading_rad):
             hdg = round(math.degrees(yaw_from_heading(heading_rad)) * 100.0) % 36000
-        message = self.mav.global_position_int_encode(
-            _ms(t_s), round(lat_deg * 1e7), round(lon_deg * 1e7), 0, 0, _cm_s(north), _cm_s(east), 0, hdg
+        return self.encoder.frame(
+            mavlink.MAVLink_global_position_int_message,
+            _ms(t_s),
+            round(lat_deg * 1e7),
+            round(lon_deg * 1e7),
+            0,
+            0,
+            _cm_s(north),
+            _cm_s(east),
+            0,
+            hdg,
         )
-        return self.encoder.pack(message)
 
     def distance_sensor(
         self, t_s: float, sensor_id: int, distance_m: float, max_m: float, min_m: float = 0.02
@@ -133,30 +145,37 @@ class TelemetryEncoder:
         configuration (docs/mavlink-mapping.md)."""
         max_cm = round(max_m * 100.0)
         current = max_cm + 1 if not math.isfinite(distance_m) else min(max_cm + 1, round(distance_m * 100.0))
-        message = self.mav.distance_sensor_encode(
+        return self.encoder.frame(mavlink.MAVLink_distance_sensor_message,
             _ms(t_s), round(min_m * 100.0), max_cm, current, mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,
             int(sensor_id), mavlink.MAV_SENSOR_ROTATION_CUSTOM, 255,
         )  # fmt: skip
-        return self.encoder.pack(message)
 
     def light(self, t_s: float, left: float, right: float) -> bytes:
         """The two light readings as NAMED_VALUE_FLOAT "light_l" and "light_r" (W/m^2)."""
         ms = _ms(t_s)
-        return self.encoder.pack(self.mav.named_value_float_encode(ms, b"light_l", float(left))) + self.encoder.pack(
-            self.mav.named_value_float_encode(ms, b"light_r", float(right))
+        named = mavlink.MAVLink_named_value_float_message
+        return self.encoder.frame(named, ms, b"light_l", float(left)) + self.encoder.frame(
+            named, ms, b"light_r", float(right)
         )
 
     def attitude(self, t_s: float, heading_rad: float, yaw_rate_radps: float = 0.0) -> bytes:
         """ATTITUDE, level: yaw from our heading, yawspeed clockwise-positive (rad/s)."""
-        message = self.mav.attitude_encode(
-            _ms(t_s), 0.0, 0.0, yaw_from_heading(heading_rad), 0.0, 0.0, -float(yaw_rate_radps)
+        return self.encoder.frame(
+            mavlink.MAVLink_attitude_message,
+            _ms(t_s),
+            0.0,
+            0.0,
+            yaw_from_heading(heading_rad),
+            0.0,
+            0.0,
+            -float(yaw_rate_radps),
         )
-        return self.encoder.pack(message)
 
     def scaled_imu(self, t_s: float, accel_body_mps2: Sequence[float], gyro_z_radps: float) -> bytes:
         """SCALED_IMU (mG, mrad/s, FRD body frame) from our level IMU (x forward, y left; yaw rate CCW)."""
         to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
-        message = self.mav.scaled_imu_encode(
+        return self.encoder.frame(
+            mavlink.MAVLink_scaled_imu_message,
             _ms(t_s),
             _int16(accel_body_mps2[0] * to_mg),
             _int16(-accel_body_mps2[1] * to_mg),
@@ -168,51 +187,68 @@ class TelemetryEncoder:
             0,
             0,
         )
-        return self.encoder.pack(message)
 
     def raw_imu(self, t_s: float, accel_body_mps2: Sequence[float], gyro_z_radps: float) -> bytes:
         """RAW_IMU as ArduPilot fills it (GCS_Common.cpp send_raw_imu: mG and mrad/s, FRD), from our level IMU."""
         to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
-        message = self.mav.raw_imu_encode(
+        return self.encoder.frame(mavlink.MAVLink_raw_imu_message,
             _usec(t_s), _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), -1000,
             0, 0, _int16(-gyro_z_radps * 1000.0), 0, 0, 0, 0, 0,
         )  # fmt: skip
-        return self.encoder.pack(message)
 
     def wheel_distance(self, t_s: float, distance_m: Sequence[float], count: int = 2) -> bytes:
         """WHEEL_DISTANCE with `count` wheels (left, right), cumulative metres."""
         distances = [float(distance_m[0]), float(distance_m[1])] + [0.0] * 14
-        return self.encoder.pack(self.mav.wheel_distance_encode(_usec(t_s), int(count), distances))
+        return self.encoder.frame(mavlink.MAVLink_wheel_distance_message, _usec(t_s), int(count), distances)
 
     def rc_channels(self, t_s: float, pwm_us: Sequence[int], channel_count: int) -> bytes:
         """RC_CHANNELS: the autopilot's RC inputs (us; 0 = none), 18 channels, RSSI unknown (255)."""
         values = [max(0, min(UINT16_MAX, int(v))) for v in list(pwm_us)[:18]] + [0] * max(0, 18 - len(pwm_us))
-        return self.encoder.pack(self.mav.rc_channels_encode(_ms(t_s), int(channel_count), *values, 255))
+        return self.encoder.frame(mavlink.MAVLink_rc_channels_message, _ms(t_s), int(channel_count), *values, 255)
 
     def servo_output_raw(self, t_s: float, pwm_us: Sequence[int]) -> bytes:
         """SERVO_OUTPUT_RAW: the outputs SERVO1..16 (us; 0 = no output)."""
         values = [max(0, min(UINT16_MAX, int(v))) for v in list(pwm_us)[:16]] + [0] * max(0, 16 - len(pwm_us))
-        return self.encoder.pack(self.mav.servo_output_raw_encode(_usec(t_s) & 0xFFFFFFFF, 0, *values))
+        return self.encoder.frame(mavlink.MAVLink_servo_output_raw_message, _usec(t_s) & 0xFFFFFFFF, 0, *values)
 
     def home_position(self, t_s: float, lat_e7: int, lon_e7: int, alt_m: float = 0.0) -> bytes:
         """HOME_POSITION as ArduPilot sends it (GCS_Common.cpp send_home_position): lat/lon degE7, altitude mm,
         local position 0 (home is the origin here), q NaN, approach 0."""
         nan = math.nan
-        message = self.mav.home_position_encode(
-            int(lat_e7), int(lon_e7), round(alt_m * 1000.0), 0.0, 0.0, 0.0, [nan] * 4, 0.0, 0.0, 0.0, _usec(t_s)
+        return self.encoder.frame(
+            mavlink.MAVLink_home_position_message,
+            int(lat_e7),
+            int(lon_e7),
+            round(alt_m * 1000.0),
+            0.0,
+            0.0,
+            0.0,
+            [nan] * 4,
+            0.0,
+            0.0,
+            0.0,
+            _usec(t_s),
         )
-        return self.encoder.pack(message)
 
-    def autopilot_version(
-        self, capabilities: int, flight_sw_version: int, custom_version: bytes, uid: int
-    ) -> bytes:
+    def autopilot_version(self, capabilities: int, flight_sw_version: int, custom_version: bytes, uid: int) -> bytes:
         """AUTOPILOT_VERSION (GCS_Common.cpp send_autopilot_version): capabilities bitmask, the firmware version
         (major << 24 | minor << 16 | patch << 8 | type), the git hash's first 8 bytes, a unique id."""
         custom = list(bytes(custom_version)[:8].ljust(8, b"\0"))
-        message = self.mav.autopilot_version_encode(
-            int(capabilities), int(flight_sw_version), 0, 0, 0, custom, [0] * 8, [0] * 8, 0, 0, int(uid), [0] * 18
+        return self.encoder.frame(
+            mavlink.MAVLink_autopilot_version_message,
+            int(capabilities),
+            int(flight_sw_version),
+            0,
+            0,
+            0,
+            custom,
+            [0] * 8,
+            [0] * 8,
+            0,
+            0,
+            int(uid),
+            [0] * 18,
         )
-        return self.encoder.pack(message)
 
     def statustext(self, severity: int, text: str) -> bytes:
         """STATUSTEXT as ArduPilot sends a text (GCS_Common.cpp GCS::send_textv): up to 50 characters in one message
@@ -220,12 +256,12 @@ class TelemetryEncoder:
         than 50, possibly empty, ends it), at most 30 chunks."""
         raw = text.encode("ascii", "replace")
         if len(raw) <= 50:
-            return self.encoder.pack(self.mav.statustext_encode(int(severity), raw, 0, 0))
+            return self.encoder.frame(mavlink.MAVLink_statustext_message, int(severity), raw, 0, 0)
         self._text_id = self._text_id % 65535 + 1
         out = bytearray()
         for seq in range(30):
             chunk, raw = raw[:50], raw[50:]
-            out += self.encoder.pack(self.mav.statustext_encode(int(severity), chunk, self._text_id, seq))
+            out += self.encoder.frame(mavlink.MAVLink_statustext_message, int(severity), chunk, self._text_id, seq)
             if len(chunk) < 50:
                 break
         return bytes(out)
@@ -236,8 +272,7 @@ class TelemetryEncoder:
         voltage = UINT16_MAX if not math.isfinite(voltage_v) else min(UINT16_MAX - 1, round(voltage_v * 1000.0))
         remaining = -1 if not math.isfinite(remaining_pct) else round(remaining_pct)
         cells = [voltage] + [UINT16_MAX] * 9
-        message = self.mav.battery_status_encode(0, 0, 0, 32767, cells, -1, -1, -1, remaining)
-        return self.encoder.pack(message)
+        return self.encoder.frame(mavlink.MAVLink_battery_status_message, 0, 0, 0, 32767, cells, -1, -1, -1, remaining)
 
     def vfr_hud(self, groundspeed_mps: float, heading_rad: float | None, throttle_pct: float) -> bytes:
         """VFR_HUD: ground speed m/s, heading deg 0..359 from our heading, throttle % (Rover reports reverse as a
@@ -247,24 +282,26 @@ class TelemetryEncoder:
             heading = round(math.degrees(yaw_from_heading(heading_rad))) % 360
         speed = float(groundspeed_mps) if math.isfinite(groundspeed_mps) else 0.0
         throttle = (max(-32768, min(32767, round(throttle_pct))) & 0xFFFF) if math.isfinite(throttle_pct) else 0
-        return self.encoder.pack(self.mav.vfr_hud_encode(speed, speed, heading, throttle, 0.0, 0.0))
+        return self.encoder.frame(mavlink.MAVLink_vfr_hud_message, speed, speed, heading, throttle, 0.0, 0.0)
 
     def system_time(self, t_s: float, unix_time_s: float = 0.0) -> bytes:
         """SYSTEM_TIME: Unix time us (0 when unknown) and time since boot ms."""
-        return self.encoder.pack(self.mav.system_time_encode(max(0, int(unix_time_s * 1e6)), _ms(t_s)))
+        return self.encoder.frame(mavlink.MAVLink_system_time_message, max(0, int(unix_time_s * 1e6)), _ms(t_s))
 
     def message_interval(self, message_id: int, interval_us: int) -> bytes:
         """MESSAGE_INTERVAL (reply to MAV_CMD_GET_MESSAGE_INTERVAL): -1 = off, 0 = not available."""
-        return self.encoder.pack(self.mav.message_interval_encode(int(message_id) & 0xFFFF, int(interval_us)))
+        return self.encoder.frame(mavlink.MAVLink_message_interval_message, int(message_id) & 0xFFFF, int(interval_us))
 
     def sys_status(self, voltage_v: float, remaining_pct: float) -> bytes:
         """SYS_STATUS with the battery voltage (V) and remaining charge (%); NaN reports unknown."""
         voltage = UINT16_MAX if not math.isfinite(voltage_v) else round(voltage_v * 1000.0)
         remaining = -1 if not math.isfinite(remaining_pct) else round(remaining_pct)
-        message = self.mav.sys_status_encode(0, 0, 0, 0, voltage, -1, remaining, 0, 0, 0, 0, 0, 0)
-        return self.encoder.pack(message)
+        return self.encoder.frame(
+            mavlink.MAVLink_sys_status_message, 0, 0, 0, 0, voltage, -1, remaining, 0, 0, 0, 0, 0, 0
+        )
 
     def command_ack(self, command: int, result: int, target_system: int = 0, target_component: int = 0) -> bytes:
         """COMMAND_ACK of a COMMAND_LONG."""
-        message = self.mav.command_ack_encode(command, result, 0, 0, target_system, target_component)
-        return self.encoder.pack(message)
+        return self.encoder.frame(
+            mavlink.MAVLink_command_ack_message, command, result, 0, 0, target_system, target_component
+        )
