@@ -173,6 +173,7 @@ class ParameterStore:
         self.pack, self.mav = pack, mav
         self.on_change: Callable[[str, float], None] | None = None
         self.refused = 0  # PARAM_SETs refused (unknown name, non-finite or out of range)
+        self.version = 0  # counts changes, so that values derived from parameters can be cached
         for name, value in (overrides or {}).items():
             if not self.set(name, value):
                 raise ValueError(f"cannot set parameter {name} to {value!r}: {self.problem(name, value)}")
@@ -205,6 +206,7 @@ class ParameterStore:
         new = stored_value(value, spec.mav_type)
         changed = new != self.values[name]
         self.values[name] = new
+        self.version += changed
         if changed and self.on_change is not None:
             self.on_change(name, new)
         return True

@@ -99,16 +99,23 @@ class RcInput:
         return t_s - self.override_t[i] < timeout_s
 
     def any_override(self, t_s: float, timeout_s: float) -> bool:
-        return any(self.has_override(i, t_s, timeout_s) for i in range(OVERRIDE_CHANNELS))
+        if timeout_s == 0:
+            return False
+        live = (t_s - self.override_t[i] < timeout_s for i in range(OVERRIDE_CHANNELS) if self.override[i])
+        return any(self.override) if timeout_s < 0 else any(live)
 
     def update(self, t_s: float, timeout_s: float, trims: list[int]) -> None:
-        """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value."""
+        """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value. (The test
+        of `has_override` inlined: this runs for every channel of every vehicle at every step.)"""
+        override, override_t, radio_in, receiver = self.override, self.override_t, self.radio_in, self.receiver
+        n_trims = len(trims)
         for i in range(OVERRIDE_CHANNELS):
-            if self.has_override(i, t_s, timeout_s):
-                self.radio_in[i] = self.override[i]
-            elif self.receiver:
-                self.radio_in[i] = trims[i] if i < len(trims) else 1500
-        if self.receiver:
+            value = override[i]
+            if value and (timeout_s < 0 or (timeout_s > 0 and t_s - override_t[i] < timeout_s)):
+                radio_in[i] = value
+            elif receiver:
+                radio_in[i] = trims[i] if i < n_trims else 1500
+        if receiver:
             self.last_valid_s = t_s
 
 

@@ -65,12 +65,17 @@ STREAM_MODES = ("ardupilot", "sensor-rate")
 FLIGHT_SW_VERSION = (4 << 24) | (7 << 16) | (0 << 8) | m.FIRMWARE_VERSION_TYPE_DEV
 FIRMWARE_STRING, GIT_HASH = "ArduRover V4.7.0-dev", b"90700977"
 CAPABILITIES = (
-    m.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | m.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-    | m.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | m.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | m.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT | m.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-    | m.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | m.MAV_PROTOCOL_CAPABILITY_COMPASS_CALIBRATION
+    m.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | m.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | m.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | m.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | m.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+    | m.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | m.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | m.MAV_PROTOCOL_CAPABILITY_COMPASS_CALIBRATION
     | m.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )  # fmt: skip  (no MISSION_FENCE / MISSION_RALLY / FTP: the simulator has none of them)
+PRODUCED_IN_ORDER = tuple(sorted(PRODUCED))  # the order `stream` sends a step's messages in
 HOME_MOVE_M = 0.5  # Rover/defines.h DISTANCE_HOME_MINCHANGE
 MISSION_MESSAGES = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST",
                     "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_CLEAR_ALL"}  # fmt: skip
@@ -141,6 +146,8 @@ class SimulatedVehicle:
             overrides.setdefault("INITIAL_MODE", int(mode))
         table = rover_parameter_table(kind, system_id, gcs_system_id)
         self.params = ParameterStore(table, self.telemetry.pack, self.telemetry.mav, overrides)
+        self._rc_cache: tuple[list[int], dict[str, tuple | None]] | None = None  # see _rc_setup
+        self._rc_cache_version = -1
         initial = self.params.get_int("INITIAL_MODE")
         self.mode = initial if initial in SUPPORTED_MODES else ROVER_MODES["MANUAL"]
         self.armed = bool(armed)
@@ -335,16 +342,30 @@ class SimulatedVehicle:
         else:
             self.counters.idle += 1
 
+    def _rc_setup(self) -> tuple[list[int], dict[str, tuple | None]]:
+        """RC1..8_TRIM and, per role, (channel, MIN, TRIM, MAX, DZ, REVERSED) or None for an invalid map; read
+        again from the parameters only when one has changed."""
+        if self._rc_cache_version != self.params.version or self._rc_cache is None:
+            p = self.params
+            trims = [p.get_int(f"RC{ch}_TRIM") for ch in range(1, 9)]
+            roles: dict[str, tuple | None] = {}
+            for role, name in (("steer", "RCMAP_ROLL"), ("throttle", "RCMAP_THROTTLE"), ("lateral", "RCMAP_YAW")):
+                ch = p.get_int(name)
+                roles[role] = None if not 1 <= ch <= 8 else (
+                    ch, p.get_int(f"RC{ch}_MIN"), p.get_int(f"RC{ch}_TRIM"), p.get_int(f"RC{ch}_MAX"),
+                    p.get_int(f"RC{ch}_DZ"), bool(p.get_int(f"RC{ch}_REVERSED")),
+                )  # fmt: skip
+            self._rc_cache, self._rc_cache_version = (trims, roles), p.version
+        return self._rc_cache
+
     def _trims(self) -> list[int]:
-        return [self.params.get_int(f"RC{ch}_TRIM") for ch in range(1, 9)]
+        return self._rc_setup()[0]
 
     def _channel(self, role: str, paddle: bool = False) -> float:
-        ch = self.params.get_int({"steer": "RCMAP_ROLL", "throttle": "RCMAP_THROTTLE", "lateral": "RCMAP_YAW"}[role])
-        if not 1 <= ch <= 8:
+        setup = self._rc_setup()[1][role]
+        if setup is None:
             return 0.0  # RC_Channels: a dummy channel for an invalid map
-        p = self.params
-        calib = (p.get_int(f"RC{ch}_MIN"), p.get_int(f"RC{ch}_TRIM"), p.get_int(f"RC{ch}_MAX"),
-                 p.get_int(f"RC{ch}_DZ"), bool(p.get_int(f"RC{ch}_REVERSED")))  # fmt: skip
+        ch, *calib = setup
         pwm = self.rc.radio_in[ch - 1]
         if pwm == 0:
             return 0.0
@@ -712,7 +733,7 @@ class SimulatedVehicle:
         self.outbox.clear()
         if self.streams != "ardupilot":
             return bytes(out)
-        for message_id in sorted(PRODUCED):
+        for message_id in PRODUCED_IN_ORDER:
             if not self.schedule.due(message_id, t_s):
                 continue
             reading = getattr(self, self._READING_OF[message_id]) if message_id in self._READING_OF else None
@@ -734,7 +755,7 @@ class SimulatedVehicle:
         return bytes(out)
 
     def housekeeping(self, t_s: float, voltage_v: float = 12.6, remaining_pct: float = 100.0) -> bytes:
-        """"sensor-rate" streams: HEARTBEAT and SYS_STATUS once a second and the announcements; "ardupilot": the
+        """ "sensor-rate" streams: HEARTBEAT and SYS_STATUS once a second and the announcements; "ardupilot": the
         same as `stream`."""
         if self.streams == "ardupilot":
             return self.stream(t_s)
