@@ -1,0 +1,1 @@
+"""State estimation: the buoy and eBot extended Kalman filters."""

@@ -1,0 +1,80 @@
+"""Row-wise Kalman filter math: filterpy's EKF predict and Joseph update over a stack of filters, the innovation
+gate's chi-square quantiles and angle wrapping."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bob_autonomy.simple_estimator import FloatArray
+
+# Chi-square 99.9 % quantiles by degrees of freedom (the innovation gate).
+CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467}
+
+
+def wrap_angle(angle_rad: ArrayLike) -> FloatArray:
+    """Angles (rad) wrapped to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=float), 2.0 * np.pi)
+
+
+def _transpose(a: FloatArray) -> FloatArray:
+    """The matrices of a stack (..., r, c) transposed: (..., c, r)."""
+    return np.swapaxes(a, -1, -2)
+
+
+def kalman_predict_rows(p_cov: FloatArray, f_jac: FloatArray, q_cov: FloatArray) -> FloatArray:
+    """Covariance prediction of filterpy's KalmanFilter/ExtendedKalmanFilter.predict, P = F P F^T + Q, for a
+    stack of filters (m, n, n), then symmetrised."""
+    p_new = f_jac @ p_cov @ _transpose(f_jac) + q_cov
+    return 0.5 * (p_new + _transpose(p_new))
+
+
+def kalman_update_rows(
+    x: FloatArray, p_cov: FloatArray, y: FloatArray, h_jac: FloatArray, r_cov: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """The update of filterpy's ExtendedKalmanFilter.update (Joseph form) for a stack of m filters.
+
+    x (m, n) states, p_cov (m, n, n), y (m, k) innovations z - h(x), h_jac (m, k, n) or (k, n), r_cov (m, k, k)
+    or (k, k). Returns the updated states and covariances (symmetrised), the squared Mahalanobis distances
+    y^T S^-1 y (m,) and which rows had a positive-definite innovation covariance S (the others are left as they
+    were).
+    """
+    pht = p_cov @ _transpose(h_jac)
+    s_inv, ok = _spd_inverse(h_jac @ pht + r_cov)
+    d2 = (y[:, None, :] @ s_inv @ y[:, :, None])[:, 0, 0]
+    gain = pht @ s_inv
+    x_new = x + (gain @ y[:, :, None])[:, :, 0]
+    i_kh = np.eye(x.shape[1]) - gain @ h_jac
+    p_new = i_kh @ p_cov @ _transpose(i_kh) + gain @ r_cov @ _transpose(gain)
+    p_new = 0.5 * (p_new + _transpose(p_new))
+    if ok.all():
+        return x_new, p_new, d2, ok
+    return np.where(ok[:, None], x_new, x), np.where(ok[:, None, None], p_new, p_cov), d2, ok
+
+
+def _spd_inverse(s_cov: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Inverses of a stack of symmetric matrices (m, k, k) (closed form for k <= 2) and which were positive
+    definite (the others get the identity's inverse)."""
+    k = s_cov.shape[-1]
+    if k == 1:
+        ok = s_cov[:, 0, 0] > 0.0
+        return 1.0 / np.where(ok, s_cov[:, 0, 0], 1.0)[:, None, None], ok
+    if k == 2:
+        a, b, c, d = s_cov[:, 0, 0], s_cov[:, 0, 1], s_cov[:, 1, 0], s_cov[:, 1, 1]
+        det = a * d - b * c
+        ok = (a > 0.0) & (det > 0.0)
+        a, b, c, d = (np.where(ok, v, w) for v, w in ((a, 1.0), (b, 0.0), (c, 0.0), (d, 1.0)))
+        det = np.where(ok, det, 1.0)
+        inv = np.empty_like(s_cov)
+        inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 0], inv[:, 1, 1] = d / det, -b / det, -c / det, a / det
+        return inv, ok
+    ok = np.linalg.det(s_cov) > 0.0  # a symmetric S with a non-positive (or NaN) determinant is not SPD
+    if not ok.all():
+        s_cov = np.where(ok[:, None, None], s_cov, np.eye(k))
+    return np.linalg.inv(s_cov), ok
+
+
+def _healthy_rows(x: FloatArray, p_cov: FloatArray) -> NDArray[np.bool_]:
+    """Rows whose state and covariance are finite with positive variances (a sum is finite only if every term is)."""
+    finite = np.isfinite(x.sum(axis=1) + p_cov.sum(axis=(1, 2)))
+    return finite & (np.diagonal(p_cov, axis1=1, axis2=2).min(axis=1) > 0.0)
