@@ -1,0 +1,229 @@
+"""BuoyEkfBank: N buoy EKFs held in numpy arrays (rows = agents) behind the batch estimator API."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bob_autonomy.estimation.buoy_params import (
+    _COMPASS,
+    _GPS,
+    _GYRO,
+    _IGNORED,
+    _INIT,
+    _LATE,
+    _NX,
+    _PREDICT,
+    _REJECTED,
+    OUTCOMES,
+    BuoyEkfParams,
+)
+from bob_autonomy.estimation.buoy_process import _BuoyProcess
+from bob_autonomy.estimation.buoy_replay import _BuoyReplay, _scalars, _vectors
+from bob_autonomy.estimation.kalman_rows import wrap_angle
+from bob_autonomy.simple_estimator import FloatArray, IntArray, PoseEstimate
+
+
+class BuoyEkfBank(_BuoyReplay, _BuoyProcess):
+    """N buoy EKFs held in arrays, rows = agents, behind the batch API of AlphaBetaBuoyEstimator.
+
+    n: number of buoys; position_m (n, 2), heading_rad (n,): initial poses if known (else the first GPS fix and
+    compass reading set them); params: BuoyEkfParams. Each agent is an independent filter (see the docstring of
+    bob_autonomy.estimation); a call handles all its rows at once with numpy (an agent given twice in one call is
+    handled row by row, in order).
+
+    Its code is spread over bases by concern: _BuoyUpdates (measurement updates), _BuoyProcess (prediction,
+    drag balance) and _BuoyReplay (time, log and replay).
+
+    Arrays (row i = agent i): x (n, 10) states, P (n, 10, 10) covariances, t (n,) filter times (NaN before the
+    first reading), pos_init / heading_init (n,) whether position / heading were set.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        position_m: ArrayLike | None = None,
+        heading_rad: ArrayLike | None = None,
+        params: BuoyEkfParams | None = None,
+    ) -> None:
+        self.params = p = BuoyEkfParams() if params is None else params
+        self.n = n = int(n)
+        sig = [p.initial_position_sigma_m] * 2 + [p.initial_velocity_sigma_mps] * 2
+        sig += [p.initial_heading_sigma_rad, p.initial_yaw_rate_sigma_radps] + [p.initial_drift_sigma_mps] * 2
+        sig += [p.initial_accel_bias_sigma_mps2] * 2
+        self.x = np.zeros((n, _NX))
+        self.P = np.tile(np.diag(np.square(sig)), (n, 1, 1))
+        self.t = np.full(n, np.nan)
+        self.pos_init = np.zeros(n, dtype=bool)
+        self.heading_init = np.zeros(n, dtype=bool)
+        self.accel = np.full((n, 2), np.nan)  # the accelerometer reading in use (body frame), and its time
+        self.t_accel = np.full(n, -np.inf)
+        self.thrust = np.full((n, 2), np.nan)  # the thrust command in force (world frame), and its time
+        self.t_thrust = np.full(n, -np.inf)
+        self.nozzle = np.zeros(n)  # believed nozzle angle relative to the hull (rad), and when it was last slewed
+        self.t_nozzle = np.full(n, np.nan)
+        self.gate_run = np.zeros((n, 4), dtype=np.int64)  # consecutive gated readings of each kind
+        self._template_cache: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        self._rejected = np.zeros(n, dtype=np.int64)
+        self._late = np.zeros(n, dtype=np.int64)
+        self._pruned = np.zeros((n, len(OUTCOMES)), dtype=np.int64)  # outcomes of entries gone from the logs
+        # Replay logs, one per agent: entries [t, call, row in call, snapshot block, row in block, outcome].
+        self._logs: list[list[list]] = [[] for _ in range(n)]
+        self._times: list[list[float]] = [[] for _ in range(n)]
+        everyone = np.arange(n)
+        if position_m is not None:
+            pos = np.asarray(position_m, dtype=float).reshape(n, 2)
+            self._set_states(everyone, [0, 1], pos, np.eye(2) * p.gps_sigma_m**2)
+            self.pos_init[:] = True
+        if heading_rad is not None:
+            head = np.broadcast_to(np.asarray(heading_rad, dtype=float), (n,))
+            self._set_states(everyone, [4], wrap_angle(head)[:, None], np.array([[p.compass_sigma_rad**2]]))
+            self.heading_init[:] = True
+
+    # ------------------------------------------------------------ readings (the batch API)
+
+    def predict(
+        self,
+        agents: IntArray,
+        t_s: ArrayLike,
+        accel_body: FloatArray | None = None,
+        thrust_world_n: FloatArray | None = None,
+    ) -> None:
+        """Predict agents to t_s (s) with accelerometer readings (k, 2) (body frame: x forward, y left; m/s^2)
+        taken at t_s, if any, and the thrust commands (k, 2) (world frame, N) in force over the interval that
+        ends at t_s and for thrust_hold_s after it, if any."""
+        self._predict(agents, t_s, accel_body, thrust_world_n)
+
+    def update_imu(self, agents: IntArray, t_s: ArrayLike, accel_body: FloatArray, gyro_z_radps: FloatArray) -> None:
+        """An IMU reading: predict with the accelerometer (held thrust), then fuse the gyro."""
+        self._predict(agents, t_s, accel_body, None)
+        self._update_gyro(agents, t_s, gyro_z_radps)
+
+    def update_gps(
+        self, agents: IntArray, t_s: ArrayLike, xy_m: FloatArray, velocity_mps: FloatArray | None = None
+    ) -> None:
+        """Fuse fixes (k, 2) (local x east, y north, m) measured at t_s, and ground velocities (k, 2) m/s if given."""
+        self._update_gps(agents, t_s, xy_m, velocity_mps)
+
+    def update_compass(self, agents: IntArray, heading_rad: FloatArray, t_s: ArrayLike | None = None) -> None:
+        """Compass headings (rad) measured at t_s (None: at each filter's current time)."""
+        self._update_compass(agents, heading_rad, t_s)
+
+    def update_gyro(self, agents: IntArray, t_s: ArrayLike, yaw_rate_radps: FloatArray) -> None:
+        """Gyro yaw rates (rad/s, CCW positive) measured at t_s."""
+        self._update_gyro(agents, t_s, yaw_rate_radps)
+
+    def _predict(
+        self, agents: ArrayLike, t_s: ArrayLike, accel: ArrayLike | None, thrust: ArrayLike | None
+    ) -> IntArray:
+        idx, t = self._batch(agents, t_s)
+        return self._submit(_PREDICT, idx, t, (_vectors(accel, idx.size), _vectors(thrust, idx.size)))
+
+    def _update_gps(self, agents: ArrayLike, t_s: ArrayLike, xy: ArrayLike, vel: ArrayLike | None) -> IntArray:
+        idx, t = self._batch(agents, t_s)
+        return self._submit(_GPS, idx, t, (_vectors(xy, idx.size), _vectors(vel, idx.size)))
+
+    def _update_gyro(self, agents: ArrayLike, t_s: ArrayLike, rate: ArrayLike) -> IntArray:
+        idx, t = self._batch(agents, t_s)
+        return self._submit(_GYRO, idx, t, (_scalars(rate, idx.size),))
+
+    def _update_compass(self, agents: ArrayLike, heading: ArrayLike, t_s: ArrayLike | None) -> IntArray:
+        if t_s is not None:
+            idx, t = self._batch(agents, t_s)
+            return self._submit(_COMPASS, idx, t, (_scalars(heading, idx.size),))
+        idx = np.asarray(agents, dtype=np.intp).reshape(-1)
+        head = _scalars(heading, idx.size)
+        t = self.t[idx].copy()
+        codes = np.full(idx.size, _REJECTED)
+        clockless = np.isnan(t) & np.isfinite(head)
+        if clockless.any():  # no clock yet: the reading can only initialise the heading (not logged)
+            rows = idx[clockless]
+            first = ~self.heading_init[rows]
+            self._initial_heading(rows[first], head[clockless][first])
+            codes[np.flatnonzero(clockless)] = np.where(first, _INIT, _IGNORED)
+        rest = ~clockless
+        if rest.any():
+            codes[rest] = self._submit(_COMPASS, idx[rest], np.where(np.isnan(t[rest]), 0.0, t[rest]), (head[rest],))
+        return codes
+
+    # ------------------------------------------------------------ outputs
+
+    def estimate(self, t_s: ArrayLike) -> PoseEstimate:
+        """Poses of the N agents, position and heading extrapolated to t_s (never backwards); never NaN."""
+        dt = np.maximum(0.0, np.asarray(t_s, dtype=float) - self.t)
+        dt = np.where(np.isnan(dt), 0.0, dt)
+        x = self.x
+        return PoseEstimate(x[:, 0:2] + x[:, 2:4] * dt[:, None], x[:, 2:4].copy(), wrap_angle(x[:, 4] + x[:, 5] * dt))
+
+    def drift(self) -> FloatArray:
+        """(N, 2) estimated equivalent drift over ground (see bob_autonomy.estimation), m/s."""
+        return self.x[:, 6:8].copy()
+
+    def accel_bias(self) -> FloatArray:
+        """(N, 2) estimated accelerometer bias (body frame), m/s^2."""
+        return self.x[:, 8:10].copy()
+
+    def initialized(self) -> NDArray[np.bool_]:
+        """(N,) whether position and heading have been set (by readings or at construction)."""
+        return self.pos_init & self.heading_init
+
+    def covariance_trace(self) -> FloatArray:
+        """(N,) trace of each agent's position covariance, m^2."""
+        return self.P[:, 0, 0] + self.P[:, 1, 1]
+
+    def outcome_counts(self, outcome: str) -> NDArray[np.int64]:
+        """(N,) how many readings of each agent had this outcome (one of OUTCOMES), replays accounted for."""
+        code = OUTCOMES.index(outcome)
+        if code == _REJECTED:
+            return self._rejected.copy()
+        if code == _LATE:
+            return self._late.copy()
+        live = np.array([sum(e[5] == code for e in log) for log in self._logs], dtype=np.int64)
+        return self._pruned[:, code] + live
+
+    @property
+    def rejected(self) -> int:
+        """Non-finite readings (never fused)."""
+        return int(self._rejected.sum())
+
+    @property
+    def late(self) -> int:
+        """Readings older than the replay window."""
+        return int(self._late.sum())
+
+    @property
+    def gated(self) -> int:
+        """Sensor readings rejected by the innovation gate."""
+        return int(self.outcome_counts("gated").sum())
+
+    @property
+    def resets(self) -> int:
+        """Re-initialisations after gate_reset_count consecutive gated readings of one sensor."""
+        return int(self.outcome_counts("reset").sum())
+
+    @property
+    def model_gated(self) -> int:
+        """Drag-balance pseudo-measurements rejected by the gate."""
+        return int(self.outcome_counts("model_gated").sum())
+
+    @property
+    def failures(self) -> int:
+        """Steps undone because they would have left a non-finite or non-positive-definite state."""
+        return int(self.outcome_counts("failed").sum())
+
+    # ------------------------------------------------------------ readings, in time order
+
+    def _handle(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        """Readings of one kind for rows idx at times t, in time order: predict to t, then fuse by kind."""
+        clock = self.t[idx]
+        self.t[idx] = np.where(np.isnan(clock), t, clock)
+        if kind == _PREDICT:
+            return self._handle_predict(idx, t, *data)
+        self._propagate(idx, t)
+        if kind == _GPS:
+            return self._handle_gps(idx, *data)
+        if kind == _COMPASS:
+            return self._handle_compass(idx, *data)
+        if kind == _GYRO:
+            return self._handle_gyro(idx, *data)
+        raise ValueError(f"unknown reading kind {kind!r}")

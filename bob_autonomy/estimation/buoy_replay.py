@@ -1,0 +1,158 @@
+"""The buoy bank's time handling: each call's readings handled in order, or by stored-state replay when late,
+with the per-agent logs that replay needs; and the shaping of batch arguments."""
+
+from __future__ import annotations
+
+import bisect
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bob_autonomy.estimation.buoy_params import _FIELDS, _LATE, _REJECTED, BuoyEkfParams
+from bob_autonomy.simple_estimator import FloatArray, IntArray
+
+
+def _vectors(values: ArrayLike | None, k: int) -> FloatArray | None:
+    """(k, 2) float rows (a copy) of a batch argument, broadcast; None stays None."""
+    if values is None:
+        return None
+    arr = np.array(values, dtype=float)
+    return arr if arr.shape == (k, 2) else np.array(np.broadcast_to(arr, (k, 2)))
+
+
+def _scalars(values: ArrayLike, k: int) -> FloatArray:
+    """(k,) float values (a copy) of a batch argument, broadcast."""
+    arr = np.array(values, dtype=float).reshape(-1)
+    return arr if arr.size == k else np.array(np.broadcast_to(arr, (k,)))
+
+
+def _take(data: tuple, rows: ArrayLike) -> tuple:
+    """The given rows of each array of a call's data (None stays None)."""
+    return tuple(None if values is None else values[rows] for values in data)
+
+
+class _BuoyReplay:
+    """Time, log and replay of BuoyEkfBank (a base of the bank, which holds the arrays declared here and handles
+    the readings in _handle)."""
+
+    params: BuoyEkfParams
+    t: FloatArray
+    _rejected: NDArray[np.int64]
+    _late: NDArray[np.int64]
+    _pruned: NDArray[np.int64]
+    _logs: list[list[list]]
+    _times: list[list[float]]
+
+    @staticmethod
+    def _batch(agents: ArrayLike, t_s: ArrayLike) -> tuple[IntArray, FloatArray]:
+        idx = np.asarray(agents, dtype=np.intp).reshape(-1)
+        return idx, _scalars(t_s, idx.size)
+
+    def _submit(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        """Handle a call's readings (rows idx at times t): in order, or by replay; returns the outcome codes."""
+        k = idx.size
+        if k > 1 and np.unique(idx).size < k:  # an agent twice in one call: one row at a time, in order
+            return np.concatenate(
+                [self._submit(kind, idx[i : i + 1], t[i : i + 1], _take(data, [i])) for i in range(k)]
+            )
+        codes = np.full(k, _REJECTED)
+        good = np.isfinite(t)
+        for values in data:
+            if values is not None:
+                good &= np.isfinite(values.reshape(k, -1)).all(axis=1)
+        if not good.all():
+            np.add.at(self._rejected, idx[~good], 1)
+        clock = self.t[idx]
+        in_order = good & ~(t < clock)  # NaN clock (no reading yet): in order
+        late = good & (t < clock)
+        if in_order.all():
+            codes = self._run(kind, idx, t, data)
+        elif in_order.any():
+            rows = np.flatnonzero(in_order)
+            codes[rows] = self._run(kind, idx[rows], t[rows], _take(data, rows))
+        if late.any():
+            rows = np.flatnonzero(late)
+            codes[rows] = self._replay(kind, idx[rows], t[rows], _take(data, rows))
+        return codes
+
+    def _run(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        """In-order readings: handle, log with a snapshot, prune the logs."""
+        codes = self._handle(kind, idx, t, data)
+        call = (kind, data)
+        block = self._snapshot(idx)
+        window = self.params.replay_window_s
+        pruned = self._pruned
+        for r, (a, ta, code, now) in enumerate(
+            zip(idx.tolist(), t.tolist(), codes.tolist(), self.t[idx].tolist(), strict=True)
+        ):
+            log, times = self._logs[a], self._times[a]
+            log.append([ta, call, r, block, r, code])
+            times.append(ta)
+            cut = now - window  # keep the window's entries and the one before (the state to restart from)
+            if len(times) > 1 and times[1] <= cut:
+                j = bisect.bisect_right(times, cut) - 1
+                for entry in log[:j]:
+                    pruned[a, entry[5]] += 1
+                del log[:j], times[:j]
+        return codes
+
+    def _replay(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        """Late readings: back to the state just before each, fuse it there, re-run the later entries."""
+        codes = np.full(idx.size, _LATE)
+        live: list[tuple[int, int, int]] = []  # (row in this call, agent, insertion index in its log)
+        restore: dict[int, tuple[tuple, list[int], list[int]]] = {}
+        for r, (a, ta) in enumerate(zip(idx.tolist(), t.tolist(), strict=True)):
+            times = self._times[a]
+            if not times or ta < times[0]:
+                self._late[a] += 1
+                continue
+            j = bisect.bisect_right(times, ta)  # >= 1
+            previous = self._logs[a][j - 1]
+            group = restore.setdefault(id(previous[3]), (previous[3], [], []))
+            group[1].append(a)
+            group[2].append(previous[4])
+            live.append((r, a, j))
+        if not live:
+            return codes
+        for block, agents, rows in restore.values():
+            self._restore(np.array(agents), block, np.array(rows))
+        rows_in_call = np.array([r for r, _, _ in live])
+        agents = idx[rows_in_call]
+        sub = _take(data, rows_in_call)
+        new_codes = self._handle(kind, agents, t[rows_in_call], sub)
+        codes[rows_in_call] = new_codes
+        call = (kind, sub)
+        block = self._snapshot(agents)
+        pending: list[tuple[int, list]] = []
+        for n, ((r, a, j), code) in enumerate(zip(live, new_codes.tolist(), strict=True)):
+            self._logs[a].insert(j, [float(t[r]), call, n, block, n, code])
+            self._times[a].insert(j, float(t[r]))
+            pending.append((a, self._logs[a][j + 1 :]))
+        depth = 0
+        while True:  # re-run the later entries, round by round; the agents of one logged call together
+            groups: dict[int, list[tuple[int, list]]] = {}
+            for a, entries in pending:
+                if depth < len(entries):
+                    groups.setdefault(id(entries[depth][1]), []).append((a, entries[depth]))
+            if not groups:
+                break
+            for members in groups.values():
+                kind_e, data_e = members[0][1][1]
+                agents_e = np.array([a for a, _ in members])
+                t_e = np.array([e[0] for _, e in members])
+                redo = self._handle(kind_e, agents_e, t_e, _take(data_e, [e[2] for _, e in members]))
+                block_e = self._snapshot(agents_e)
+                for n, ((_, entry), code) in enumerate(zip(members, redo.tolist(), strict=True)):
+                    entry[3], entry[4], entry[5] = block_e, n, code
+            depth += 1
+        return codes
+
+    def _snapshot(self, idx: IntArray) -> tuple:
+        return tuple(getattr(self, name)[idx] for name in _FIELDS)  # fancy indexing copies
+
+    def _restore(self, idx: IntArray, block: tuple, rows: IntArray) -> None:
+        for name, values in zip(_FIELDS, block, strict=True):
+            getattr(self, name)[idx] = values[rows]
+
+    def _handle(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        raise NotImplementedError
