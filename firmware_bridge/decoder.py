@@ -21,6 +21,7 @@ docs/mavlink-mapping.md.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Iterable
@@ -29,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from firmware_bridge.frames import decode_unsigned, frame_checksum, layout
+from firmware_bridge.frames import FrameHeader, decode_unsigned, frame_checksum, layout
 from firmware_bridge.readings import (
     CompassReading,
     FloatArray,
@@ -145,9 +146,13 @@ def heading_from_yaw(yaw_rad: float) -> float:
     return wrap_angle(math.pi / 2.0 - yaw_rad)
 
 
-def classify_frame(frame: bytearray, mav: mavlink.MAVLink, followed: bool) -> tuple[str, object]:
+def classify_frame(
+    frame: bytearray, mav: mavlink.MAVLink, followed: bool, unread: frozenset[int] = frozenset()
+) -> tuple[str, object]:
     """Judge one complete candidate frame: ("ok", message), ("unknown", None), ("bad_crc", None) or
     ("malformed", None). `followed`: the frame ends the data so far or another start marker follows it.
+    Unsigned MAVLink 2 frames of the message ids in `unread` come back as a `FrameHeader` (checked, not
+    decoded: their receiver does not read their fields).
 
     The checksum of a message id the dialect does not know cannot be verified (no CRC_EXTRA), so an unknown
     frame is only believed when `followed`; otherwise its start marker is taken for noise. Signatures are
@@ -169,6 +174,8 @@ def classify_frame(frame: bytearray, mav: mavlink.MAVLink, followed: bool) -> tu
         return "bad_crc", None
     try:
         if magic == _V2 and not signed and mav.signing.secret_key is None:
+            if msg_id in unread:
+                return "ok", FrameHeader(msg_type.msgname, msg_id, frame[5], frame[6])
             return "ok", decode_unsigned(frame, layout(msg_id), crc)  # pymavlink's decode, checksum not redone
         return "ok", mav.decode(frame)
     except Exception:
@@ -239,6 +246,7 @@ class TelemetryDecoder:
         self._buf = bytearray()
         self._agents = np.array([agent], dtype=np.intp)
         self.message_hook: Callable[[object], None] | None = None  # sees every decoded message (e.g. a tlog)
+        self._unread = _unread_ids(fused_position)  # checked and counted by `feed`, not decoded
 
     # -- framing ---------------------------------------------------------------------------------------
 
@@ -246,7 +254,7 @@ class TelemetryDecoder:
         """Add received bytes; return the readings of the messages they complete, in stream order."""
         readings: list[Reading] = []
         t_s: float | None = None
-        for msg in self.feed_messages(data):
+        for msg in self.feed_messages(data, self._unread if self.message_hook is None else frozenset()):
             if not self._from_source(msg):
                 continue
             if t_s is None:
@@ -259,12 +267,13 @@ class TelemetryDecoder:
                 readings.append(reading)
         return readings
 
-    def feed_messages(self, data: bytes) -> list:
+    def feed_messages(self, data: bytes, unread: frozenset[int] = frozenset()) -> list:
         """Add received bytes; return the pymavlink messages they complete (checksums verified), in stream
-        order, of any type and any source system. For the vehicle side, which reads commands, not telemetry."""
+        order, of any type and any source system (those of ids in `unread` as `FrameHeader`s). For the
+        vehicle side, which reads commands, not telemetry."""
         messages: list = []
         try:
-            self._feed(bytes(data), messages)
+            self._feed(bytes(data), messages, unread)
         except Exception:  # pragma: no cover - defensive: nothing may escape into the caller
             self.counters.malformed += 1
             self.counters.skipped_bytes += len(self._buf)
@@ -272,7 +281,7 @@ class TelemetryDecoder:
         self.counters.pending_bytes = len(self._buf)
         return messages
 
-    def _feed(self, data: bytes, messages: list) -> None:
+    def _feed(self, data: bytes, messages: list, unread: frozenset[int]) -> None:
         c = self.counters
         c.bytes_fed += len(data)
         buf = self._buf
@@ -299,7 +308,7 @@ class TelemetryDecoder:
             frame = bytearray(buf[pos : pos + length])
             c.received += 1
             end = pos + length
-            verdict, msg = classify_frame(frame, self._mav, followed=end == n or buf[end] in (_V1, _V2))
+            verdict, msg = classify_frame(frame, self._mav, end == n or buf[end] in (_V1, _V2), unread)
             if verdict == "unknown":
                 c.unknown += 1
             elif verdict != "ok":
@@ -442,6 +451,15 @@ class TelemetryDecoder:
 
     def _command_ack(self, msg, t_s: float) -> CommandAck:
         return CommandAck(t_s=t_s, command=msg.command, result=msg.result)
+
+
+@functools.cache
+def _unread_ids(fused_position: bool) -> frozenset[int]:
+    """The message ids a decoder makes no reading of (HEARTBEAT is read: it may name the source), so that
+    `feed` need not decode them unless a message hook wants every message whole."""
+    ignored = set() if fused_position else {"GLOBAL_POSITION_INT"}
+    names = {msg_id: cls.msgname for msg_id, cls in mavlink.mavlink_map.items()}
+    return frozenset(msg_id for msg_id, name in names.items() if name not in _CONVERTERS or name in ignored)
 
 
 _CONVERTERS: dict[str, Callable[[TelemetryDecoder, object, float], Reading | None]] = {

@@ -141,6 +141,29 @@ def pack_frame(message_class: type, args: Sequence[Any], seq: int, system_id: in
     return body + crc.to_bytes(2, "little")
 
 
+class FrameHeader:
+    """A checked frame's identity without its fields, for a message its receiver does not read (it is still
+    counted and its source still judged): what pymavlink's message answers to get_type, get_srcSystem,
+    get_srcComponent and get_msgId."""
+
+    __slots__ = ("_component", "_msg_id", "_name", "_system")
+
+    def __init__(self, name: str, msg_id: int, system: int, component: int) -> None:
+        self._name, self._msg_id, self._system, self._component = name, msg_id, system, component
+
+    def get_type(self) -> str:
+        return self._name
+
+    def get_msgId(self) -> int:  # noqa: N802 - pymavlink's name
+        return self._msg_id
+
+    def get_srcSystem(self) -> int:  # noqa: N802
+        return self._system
+
+    def get_srcComponent(self) -> int:  # noqa: N802
+        return self._component
+
+
 def decode_unsigned(frame: bytearray, spec: MessageLayout, crc: int) -> object:
     """The pymavlink message of a checked, unsigned MAVLink 2 frame, with the attributes pymavlink's `decode`
     sets (header, payload, msgbuf, crc); `crc` is the frame's checksum, already verified."""
