@@ -87,8 +87,7 @@ def rc_override(channels: dict[int, int], target_system: int = 1, target_compone
         if not 1 <= channel <= 18:
             raise ValueError(f"RC channel must be 1..18, got {channel}")
         raw[channel - 1] = int(pwm)
-    message = _enc(encoder).mav.rc_channels_override_encode(target_system, target_component, *raw)
-    return _enc(encoder).pack(message)
+    return _enc(encoder).frame(mavlink.MAVLink_rc_channels_override_message, target_system, target_component, *raw)
 
 
 def release_rc_override(target_system: int = 1, target_component: int = 1, *, encoder=None) -> bytes:

@@ -47,6 +47,7 @@ class MessageLayout:
         self.message_class = message_class
         self.msg_id: int = message_class.id
         self.crc_extra: int = message_class.crc_extra
+        self._crc_extra_byte = bytes((self.crc_extra,))
         self.struct: struct.Struct = message_class.unpacker
         self.name: str = message_class.msgname
         names = list(message_class.fieldnames)
@@ -137,8 +138,7 @@ def pack_frame(message_class: type, args: Sequence[Any], seq: int, system_id: in
     msg_id = spec.msg_id
     header = V2_HEADER.pack(V2_MARKER, len(payload), 0, 0, seq, system_id, component_id, msg_id & 0xFFFF, msg_id >> 16)
     body = header + payload
-    crc = checksum(bytes((spec.crc_extra,)), checksum(body[1:]))
-    return body + crc.to_bytes(2, "little")
+    return body + checksum(body[1:] + spec._crc_extra_byte).to_bytes(2, "little")
 
 
 class FrameHeader:

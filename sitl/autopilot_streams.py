@@ -176,6 +176,11 @@ class StreamSchedule:
             return False
         return t_s + 1e-9 >= self.next_due_s.get(message_id, -math.inf)
 
+    def due_among(self, message_ids: tuple[int, ...], t_s: float) -> list[int]:
+        """The ids among `message_ids` (kept in their order) that `due` says may go out at t_s, in one pass."""
+        intervals, next_due, limit = self.interval_ms, self.next_due_s, t_s + 1e-9
+        return [i for i in message_ids if intervals.get(i, 0) > 0 and limit >= next_due.get(i, -math.inf)]
+
     def sent(self, message_id: int, t_s: float) -> None:
         period = self.interval_ms.get(message_id, 0) / 1000.0
         due = self.next_due_s.get(message_id, -math.inf) + period

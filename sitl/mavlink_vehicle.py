@@ -75,6 +75,7 @@ CAPABILITIES = (
     | m.MAV_PROTOCOL_CAPABILITY_COMPASS_CALIBRATION
     | m.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )  # fmt: skip  (no MISSION_FENCE / MISSION_RALLY / FTP: the simulator has none of them)
+OVERRIDE_FIELDS = tuple(f"chan{i}_raw" for i in range(1, 19))  # RC_CHANNELS_OVERRIDE's channels
 PRODUCED_IN_ORDER = tuple(sorted(PRODUCED))  # the order `stream` sends a step's messages in
 HOME_MOVE_M = 0.5  # Rover/defines.h DISTANCE_HOME_MINCHANGE
 MISSION_MESSAGES = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST",
@@ -300,7 +301,7 @@ class SimulatedVehicle:
         if msg.get_srcSystem() != self.gcs_system_id:
             self.counters.refused += 1  # GCS_Common.cpp handle_rc_channels_override: only from our GCS
             return
-        raw = [int(getattr(msg, f"chan{i}_raw", 0)) for i in range(1, 19)]
+        raw = [int(getattr(msg, name, 0)) for name in OVERRIDE_FIELDS]
         if any(not (800 <= v <= 2200 or v in (0, 65534, 65535)) for v in raw):
             self.counters.rejected += 1  # stricter than ArduPilot, which clamps any value into RCx_MIN..MAX
             return
@@ -733,11 +734,10 @@ class SimulatedVehicle:
         self.outbox.clear()
         if self.streams != "ardupilot":
             return bytes(out)
-        for message_id in PRODUCED_IN_ORDER:
-            if not self.schedule.due(message_id, t_s):
-                continue
-            reading = getattr(self, self._READING_OF[message_id]) if message_id in self._READING_OF else None
-            if message_id in self._READING_OF and not self._fresh(message_id, reading):
+        for message_id in self.schedule.due_among(PRODUCED_IN_ORDER, t_s):
+            reading_name = self._READING_OF.get(message_id)
+            reading = None if reading_name is None else getattr(self, reading_name)
+            if reading_name is not None and not self._fresh(message_id, reading):
                 continue
             try:
                 data = self._message(message_id)
