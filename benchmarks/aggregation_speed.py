@@ -6,21 +6,27 @@ excluded. Prints one JSON line (and the kinematic figure as a baseline).
 
     python benchmarks/aggregation_speed.py [--seconds 300] [--profile]
 
---profile also prints where a physics step's time goes (cProfile over a further
-run; the profiler's own overhead inflates every figure about twofold, the shares
-are what to read).
+--profile also prints where a physics step's time goes (wall ms per step of
+each stage, over a further run of at most 60 simulated s).
 """
 
 from __future__ import annotations
 
 import argparse
-import cProfile
 import json
-import pstats
 import time
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 
+from bob_autonomy.pipeline import BuoyPipeline
+from bob_autonomy.vehicle_link import VehicleLink
 from sitl.fleet import LockstepFleet
+from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.medium import BroadcastMedium
 from sitl.scenario import load_scenario
+from sitl.vehicle_physics import VehiclePhysics
+from sitl.vehicle_transport import MavlinkTransport
 
 
 def realtime_factor(fidelity: str, simulated_s: float) -> tuple[float, float]:
@@ -35,37 +41,55 @@ def realtime_factor(fidelity: str, simulated_s: float) -> tuple[float, float]:
     return simulated_s / wall, 1000.0 * wall / steps
 
 
-# Where a physics step goes: (label, file suffix, function name) of the stages, read from the profile's
-# cumulative times. "MAVLink up" includes the estimator's fusion of what was decoded only through `feed`.
+# Where a physics step goes: (label, class, method) of each stage, timed by wrapping the method with a clock
+# (wall time; cProfile's per-call overhead would inflate the call-heavy MAVLink stages about twofold).
 STAGES = (
-    ("step, total", "sitl/fleet.py", "step"),
-    ("MAVLink up: vehicles encode telemetry, vessels decode it", "sitl/vehicle_transport.py", "up"),
-    ("- vehicles' telemetry streams (schedule, build, pack)", "sitl/mavlink_vehicle.py", "stream"),
-    ("- vessels' decoders (frame, check, decode, convert)", "firmware_bridge/decoder.py", "feed"),
-    ("MAVLink down: RC override encoded, decoded and applied", "sitl/vehicle_transport.py", "down"),
-    ("estimator (EKF bank)", "bob_autonomy/pipeline.py", "feed"),
-    ("controller (MPC)", "bob_autonomy/pipeline.py", "thrust"),
-    ("dynamics and environment", "sitl/vehicle_physics.py", "step"),
-    ("sensors", "sitl/vehicle_physics.py", "sense"),
-    ("radio and behaviours", "sitl/medium.py", "broadcast"),
+    ("step, total", LockstepFleet, "step"),
+    ("MAVLink up: vehicles encode telemetry, vessels decode it", MavlinkTransport, "up"),
+    ("- vehicles' telemetry streams (schedule, build, pack)", SimulatedVehicle, "stream"),
+    ("- vessels' decoders (frame, check, decode, convert)", VehicleLink, "receive"),
+    ("MAVLink down: RC override encoded, decoded and applied", MavlinkTransport, "down"),
+    ("estimator (EKF bank)", BuoyPipeline, "feed"),
+    ("controller (MPC)", BuoyPipeline, "thrust"),
+    ("dynamics and environment", VehiclePhysics, "step"),
+    ("sensors", VehiclePhysics, "sense"),
+    ("radio", BroadcastMedium, "broadcast"),
 )
 
 
-def profile_summary(simulated_s: float) -> dict[str, float]:
-    """Milliseconds per step (under the profiler) of each stage of STAGES, physics fidelity."""
+@contextmanager
+def stage_clocks() -> Iterator[Counter]:
+    """Seconds spent in each stage of STAGES while the context is open (the methods wrapped, then restored)."""
+    spent: Counter = Counter()
+    originals = [(cls, name, getattr(cls, name)) for _, cls, name in STAGES]
+
+    def clocked(label: str, method):
+        def run(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                spent[label] += time.perf_counter() - start
+
+        return run
+
+    for (label, cls, name), (_, _, method) in zip(STAGES, originals, strict=True):
+        setattr(cls, name, clocked(label, method))
+    try:
+        yield spent
+    finally:
+        for cls, name, method in originals:
+            setattr(cls, name, method)
+
+
+def stage_summary(simulated_s: float) -> dict[str, float]:
+    """Wall milliseconds per step of each stage of STAGES, physics fidelity."""
     fleet = LockstepFleet(load_scenario("aggregation").with_overrides(fidelity="physics"))
     steps = round(simulated_s / fleet.scenario.dt_s)
-    profiler = cProfile.Profile()
-    profiler.enable()
-    for _ in range(steps):
-        fleet.step()
-    profiler.disable()
-    cumulative = {}
-    for (path, _line, name), (_cc, _nc, _tt, ct, _callers) in pstats.Stats(profiler).stats.items():
-        for label, suffix, function in STAGES:
-            if name == function and path.endswith(suffix):
-                cumulative[label] = cumulative.get(label, 0.0) + ct
-    return {label: round(1000.0 * cumulative.get(label, 0.0) / steps, 2) for label, _, _ in STAGES}
+    with stage_clocks() as spent:
+        for _ in range(steps):
+            fleet.step()
+    return {label: round(1000.0 * spent[label] / steps, 2) for label, _, _ in STAGES}
 
 
 def main() -> None:
@@ -90,7 +114,7 @@ def main() -> None:
         )
     )
     if args.profile:
-        print(json.dumps({"profiled_ms_per_step": profile_summary(min(args.seconds, 60.0))}, indent=1))
+        print(json.dumps({"ms_per_step_by_stage": stage_summary(min(args.seconds, 60.0))}, indent=1))
 
 
 if __name__ == "__main__":
