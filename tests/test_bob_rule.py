@@ -311,31 +311,3 @@ def test_with_skirt_the_agent_goes_around_the_wall_to_its_goal() -> None:
     assert crossing.size and np.all(path[crossing, 0] < -30.0)
     wall = np.column_stack((np.arange(-30.0, 31.0, 6.0), np.zeros(11)))
     assert np.hypot(*(path[:, None, :] - wall[None]).transpose(2, 0, 1)).min() > 3.0
-
-
-def test_predict_s_dead_reckons_neighbours_and_the_leader_for_their_message_age_capped() -> None:
-    # Agent 1 (id 2) at the origin hears agent 0 (id 1, the leader) at (20, 0), moving (0, 1) m/s, heard 3 s ago,
-    # and agent 2 (id 3) at (0, 8), moving (0, -2) m/s, heard 0.5 s ago.
-    table = make_table([[20.0, 0.0], [0.0, 0.0], [0.0, 8.0]], ids=[1, 2, 3])
-    table.velocity[:] = [[0.0, 1.0], [0.0, 0.0], [0.0, -2.0]]
-    view = make_view(table, rows=[1], pairs=[(0, 0), (0, 2)])
-    view.pair_age = np.array([3.0, 0.5])
-    # Capped at 2 s: the leader is taken at (20, 2); the neighbour at (0, 7) (0.5 s at 2 m/s).
-    assert_allclose(view.offsets(2.0), [[20.0, 2.0], [0.0, 7.0]], atol=1e-12)
-    assert_allclose(view.offsets(), [[20.0, 0.0], [0.0, 8.0]], atol=1e-12)  # predict_s 0: as heard
-    still = rule(H=1, leader_id=1).step(view)
-    moving = rule(H=1, leader_id=1, predict_s=2.0).step(view)
-    assert_allclose(moving.memory["goal"], [[20.0, 2.0]], atol=1e-12)
-    assert_allclose(still.memory["goal"], [[20.0, 0.0]], atol=1e-12)
-    # Repulsion from (0, 7) instead of (0, 8): f = min(0, 1 - 100/49) per eq. (5), along (0, 1).
-    beta = np.array([20.0, 2.0]) / math.hypot(20.0, 2.0)
-    consensus = np.array([1.0, 0.0])  # own heading 0; the neighbour at 7 m < p0 has heading 0 too
-    repulsion = (1.0 - P0**2 / 49.0) * np.array([0.0, 1.0])
-    # N = 2 (leader and neighbour); R = {neighbour}; consensus over R + self.
-    assert_allclose(moving.velocity[0], beta + (repulsion + 2 * consensus) / 2, atol=1e-12)
-
-
-def test_predict_s_must_be_finite_and_not_negative() -> None:
-    for bad in (-1.0, math.inf, math.nan):
-        with pytest.raises(ValueError, match="predict_s"):
-            rule(predict_s=bad)
