@@ -91,7 +91,6 @@ class View:
     pair_i: (M,) index into `rows` of the listening agent of each pair.
     pair_j: (M,) table row of the neighbour heard.
     t: time in s (simulated or wall clock, from the injected clock).
-    pair_age: (M,) how long ago each pair's message was heard, s (None: unknown; taken as 0).
     """
 
     table: SwarmTable
@@ -100,7 +99,6 @@ class View:
     pair_i: IntArray
     pair_j: IntArray
     t: float = 0.0
-    pair_age: FloatArray | None = None
 
     @property
     def n(self) -> int:
@@ -117,10 +115,8 @@ class View:
         """(n,) own headings, rad."""
         return self.table.heading[self.rows]
 
-    def offsets(self, predict_s: float = 0.0) -> FloatArray:
-        """(M, 2) vector from each listener to the neighbour it hears, m. With predict_s > 0 each neighbour is
-        first moved on along the velocity it broadcast for its message's age, at most predict_s (dead
-        reckoning: p_j + v_j * min(age, predict_s))."""
+    def offsets(self) -> FloatArray:
+        """(M, 2) vector from each listener to the neighbour it hears, m."""
         # One-dimensional takes per column: several times faster than 2-D fancy indexing.
         position = self.table.position
         listener = np.take(self.rows, self.pair_i)
@@ -128,15 +124,7 @@ class View:
         for col in range(2):
             column = position[:, col]
             np.subtract(np.take(column, self.pair_j), np.take(column, listener), out=out[:, col])
-        if predict_s > 0.0 and self.pair_age is not None:
-            out += self.dead_reckoning(self.pair_j, self.pair_age, predict_s)
         return out
-
-    def dead_reckoning(self, rows: IntArray, age_s: FloatArray, predict_s: float) -> FloatArray:
-        """(k, 2) how far table rows `rows` have moved since heard `age_s` ago at their broadcast velocity, m
-        (ages clipped to [0, predict_s]; a non-finite velocity counts as still)."""
-        age = np.clip(np.nan_to_num(np.asarray(age_s, dtype=float)), 0.0, predict_s)
-        return np.nan_to_num(self.table.velocity[rows]) * age[:, None]
 
     def sum_pairs(self, values: FloatArray) -> FloatArray:
         """Sum per-pair values (M,) or (M, d) onto their listener: (n,) or (n, d)."""
@@ -153,8 +141,7 @@ class View:
 
     def restrict(self, keep: NDArray[np.bool_]) -> View:
         """The same view with only the pairs where `keep` (M,) is true."""
-        age = None if self.pair_age is None else self.pair_age[keep]
-        return View(self.table, self.senses, self.rows, self.pair_i[keep], self.pair_j[keep], self.t, age)
+        return View(self.table, self.senses, self.rows, self.pair_i[keep], self.pair_j[keep], self.t)
 
 
 @dataclass

@@ -50,7 +50,6 @@ An agent never takes itself as goal (the leader's own goal term is zero).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -103,10 +102,6 @@ class BobRule(Behavior):
     resilient_f: F of the W-MSR rule applied to the consensus sum (H = 1): up to
         F headings heard within p0 on each side of the agent's own are left out
         (0: eq. (5) as printed).
-    predict_s: if positive, each neighbour (and a leader taken as the goal) is
-        placed where its broadcast velocity has carried it since it was heard,
-        for at most predict_s seconds (beyond the paper: with a 1 s broadcast
-        period a boat at 1 m/s is otherwise seen up to 1 m from where it is).
     """
 
     name: ClassVar[str] = "bob-rule"
@@ -123,11 +118,8 @@ class BobRule(Behavior):
     align_course: bool = False
     skirt: bool = False
     resilient_f: int = 0
-    predict_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.predict_s) and self.predict_s >= 0):
-            raise ValueError(f"predict_s must be a finite number of seconds >= 0, not {self.predict_s!r}")
         if not isinstance(self.resilient_f, int | np.integer) or self.resilient_f < 0:
             raise ValueError(f"resilient_f must be a whole number >= 0, not {self.resilient_f!r}")
         if self.H not in (0, 1):
@@ -147,7 +139,7 @@ class BobRule(Behavior):
             view = view.restrict(gabriel_pairs(view))
         count = view.neighbor_count()
         per_neighbour = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
-        d = view.offsets(self.predict_s)
+        d = view.offsets()
         d2 = np.einsum("ij,ij->i", d, d)
         v = per_neighbour[:, None] * view.sum_pairs(unit(d) * self.pair_factor(d2)[:, None])
         if self.H:
@@ -201,8 +193,6 @@ class BobRule(Behavior):
             return goal
         heard = view.table.ids[view.pair_j] == self.leader_id
         goal[view.pair_i[heard]] = view.table.position[view.pair_j[heard]]
-        if self.predict_s > 0.0 and view.pair_age is not None:
-            goal[view.pair_i[heard]] += view.dead_reckoning(view.pair_j[heard], view.pair_age[heard], self.predict_s)
         is_self = view.table.ids[view.rows] == self.leader_id
         goal[is_self] = view.position[is_self]
         return goal

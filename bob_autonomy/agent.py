@@ -52,13 +52,10 @@ class Agent:
         senses = self.body.senses()
         for state in self.network.receive():
             self.neighbors.update(state, now, (pose.x, pose.y))  # implausible claims refused, counted
-        fresh = self.neighbors.fresh(now)
-        heard = [state for state, _age in fresh]
+        heard = [state for state, _age in self.neighbors.fresh(now)]
         table = self._table(pose, heard)
         k = len(heard)
-        ages = np.array([age for _state, age in fresh], dtype=float)
-        pairs = (np.zeros(k, dtype=np.intp), np.arange(1, k + 1))
-        view = View(table, senses, np.zeros(1, dtype=np.intp), *pairs, now, ages)
+        view = View(table, senses, np.zeros(1, dtype=np.intp), np.zeros(k, dtype=np.intp), np.arange(1, k + 1), now)
         wish = self.behavior.step(view)
         for name, values in wish.memory.items():
             self.memory[name] = np.asarray(values[0], dtype=float)

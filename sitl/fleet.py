@@ -165,13 +165,7 @@ class LockstepFleet:
         net = scenario.network
         radio_rng = np.random.default_rng([scenario.seed, 1])  # its own stream: radio draws never shift the rest
         self.medium = BroadcastMedium(
-            self.n,
-            net.range_m,
-            net.broadcast_period_s,
-            net.expiry_s,
-            memory,
-            net.channel(),
-            radio_rng,
+            self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory, net.channel(), radio_rng,
             security=medium_security(scenario, self.group_of),  # key, plausibility, intruders, faults
         )
         self.table = self.medium.table
@@ -244,7 +238,7 @@ class LockstepFleet:
 
     def decide(self, senses: Senses) -> Wish:
         """Every active agent's wish from its behaviour (velocity m/s, heading rad)."""
-        listener, message, age = self.medium.heard(self.t, self.active)
+        listener, message, _age = self.medium.heard(self.t, self.active)
         velocity = np.zeros((self.n, 2))
         heading = np.full(self.n, np.nan)
         local = np.full(self.n, -1, dtype=np.intp)
@@ -254,7 +248,7 @@ class LockstepFleet:
                 continue
             local[rows] = np.arange(rows.size)
             keep = local[listener] >= 0
-            view = View(self.table, senses, rows, local[listener[keep]], message[keep], self.t, age[keep])
+            view = View(self.table, senses, rows, local[listener[keep]], message[keep], self.t)
             local[rows] = -1
             wish = behavior.step(view)
             velocity[rows] = wish.velocity
