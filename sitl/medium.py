@@ -266,7 +266,11 @@ class BroadcastMedium:
         order = np.arange(o_pairs.size) if in_order else np.argsort(o_pairs, kind="stable")
         if order.size == 0:
             return np.zeros(pairs.size, dtype=bool), np.zeros(pairs.size, dtype=np.intp), np.full(pairs.size, np.nan)
-        at = order[np.minimum(np.searchsorted(o_pairs[order], pairs), order.size - 1)]
+        # Looked up in increasing order: a binary search over ~10^5-10^6 keys with unsorted needles
+        # misses the cache at every probe (8 ms at 10,000 agents), sorted needles share the probes.
+        by_pair = np.argsort(pairs)
+        at = np.empty(pairs.size, dtype=np.intp)
+        at[by_pair] = order[np.minimum(np.searchsorted(o_pairs[order], pairs[by_pair]), order.size - 1)]
         found = o_pairs[at] == pairs
         heard_at = np.where(found, np.array(self._round_heard_s)[o_rank[at]], np.nan)
         return found, np.where(found, o_row[at], 0), heard_at
