@@ -165,7 +165,13 @@ class LockstepFleet:
         net = scenario.network
         radio_rng = np.random.default_rng([scenario.seed, 1])  # its own stream: radio draws never shift the rest
         self.medium = BroadcastMedium(
-            self.n, net.range_m, net.broadcast_period_s, net.expiry_s, memory, net.channel(), radio_rng,
+            self.n,
+            net.range_m,
+            net.broadcast_period_s,
+            net.expiry_s,
+            memory,
+            net.channel(),
+            radio_rng,
             security=medium_security(scenario, self.group_of),  # key, plausibility, intruders, faults
         )
         self.table = self.medium.table

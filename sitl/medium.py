@@ -113,6 +113,7 @@ class BroadcastMedium:
             else None
         )
         self._held_round = np.zeros(0, dtype=np.int64)  # (C,) round each candidate's held message came in
+        self._queried_in = 0  # the round in which the candidate pairs were last queried
         self._held_index = np.zeros(0, dtype=np.intp)  # candidates holding a live message (as decoded)
         self._round = -1  # number of the latest round (0 the first)
         self._round_alive: list[bool] = []  # newest first: whether that round's messages are still held
@@ -194,27 +195,28 @@ class BroadcastMedium:
         if pairs.stale(position, senders):
             self._query_pairs(senders)
         near = np.flatnonzero(pairs.in_range(position))
-        listener, sender = pairs.listener[near], pairs.sender[near]
         self.delivered += near.size
         if self.security is not None:
-            self._secure_round(t, base, senders, active, listener, sender)  # no intruders: no new deliveries
+            none = np.zeros(0, dtype=np.intp)  # no intruders: no deliveries of theirs to add
+            self._secure_round(t, base, senders, active, none, none)
         now = t + latency_s
         self._start_round(now)
         if self.security is not None and self.security.checks and near.size:
-            near = near[self._vet_fast(now, near, listener, sender)]
+            refused = self._vet_fast(now, near)
+            if refused is not None:
+                near = near[~refused]
         self._held_round[near] = self._round
         self._decode_fast()
 
     def _query_pairs(self, senders: IntArray) -> None:
         """New candidate pairs around the transmitting agents `senders`; the messages held are carried over
         (their pairs stay candidates until they expire)."""
-        pairs = self._pairs
-        kept = pairs.keys[self._held_index]
-        rounds = self._held_round[self._held_index]
-        pairs.rebuild(self.table.position, senders, kept)
-        self._held_index = np.searchsorted(pairs.keys, kept)
-        self._held_round = np.full(pairs.keys.size, _NEVER, dtype=np.int64)
-        self._held_round[self._held_index] = rounds
+        pairs, held = self._pairs, self._held_index
+        at = pairs.rebuild(self.table.position, senders, pairs.keys[held])
+        rounds, self._held_round = self._held_round[held], np.full(pairs.keys.size, _NEVER, dtype=np.int64)
+        self._held_round[at] = rounds
+        self._held_index = at
+        self._queried_in = self._round + 1
 
     def _start_round(self, now: float) -> None:
         """The new round (arriving at `now`, s) takes the next ring slot; rounds whose messages the keys
@@ -253,59 +255,78 @@ class BroadcastMedium:
         self.message = self.n + slots[rank] * self.transmitters + self.sender
         self.heard_at = np.array(self._round_heard_s)[rank]
 
-    def _vet_fast(self, now: float, near: IntArray, listener: IntArray, sender: IntArray) -> NDArray[np.bool_]:
-        """`_vet` for the fast path: (M,) which new deliveries (candidates `near`) pass; the others are
-        counted. Every agent's id is its index and there are no intruders (no same-round duplicates)."""
-        sec = self.security
-        rows = self.n + self._round_slot[0] * self.transmitters + sender
+    def _vet_fast(self, now: float, near: IntArray) -> NDArray[np.bool_] | None:
+        """`_vet` for the fast path: which new deliveries (candidates `near`) are refused (None: none); those
+        are counted. Every agent's id is its index and there are no intruders (no same-round duplicates)."""
+        sec, pairs = self.security, self._pairs
         round_of = self._held_round[near]
-        found = self._live(round_of)
-        rank = np.minimum(self._round - round_of, self.rounds_kept - 1)  # exact where found
-        slots = np.array(self._round_slot, dtype=np.intp)
-        code = np.zeros(rows.size, dtype=np.int8)
+        code = None
         if sec.key is not None:
-            ref_row = np.where(found, self.n + slots[np.minimum(rank, slots.size - 1)] * self.transmitters + sender, 0)
+            sender = pairs.sender[near]
+            rows = self.n + self._round_slot[0] * self.transmitters + sender
+            found = self._live(round_of)
+            slots = np.array(self._round_slot, dtype=np.intp)
+            rank = np.minimum(self._round - round_of, slots.size - 1)  # exact where found
+            ref_row = np.where(found, self.n + slots[rank] * self.transmitters + sender, 0)
             code = self.auth_code[rows].copy()
             replay = found & (self.stamp[rows] <= self.stamp[ref_row])
             stale = np.abs(self.stamp[rows] / 100_000 - now) > sec.window_s
             code[(code == 0) & replay] = code_of("replay")
             code[(code == 0) & stale] = code_of("stale")
         if sec.limits is not None:
-            verdict = self._implausible_fast(now, listener, sender, found, rank, slots)
-            code = np.where(code == 0, self._plausibility_code[verdict], code)
-        sec.count(code, sender)  # the claimed ids are the senders' indices
-        return code == 0
+            index, verdict = self._implausible_fast(now, near, round_of)
+            if index.size:
+                if code is None:
+                    code = np.zeros(near.size, dtype=np.int8)
+                code[index] = np.where(code[index] == 0, self._plausibility_code[verdict], code[index])
+        if code is None:
+            return None
+        refused = code > 0
+        sec.count(code[refused], pairs.sender[near[refused]])  # the claimed ids are the senders' indices
+        return refused
 
     def _implausible_fast(
-        self,
-        now: float,
-        listener: IntArray,
-        sender: IntArray,
-        found: NDArray[np.bool_],
-        rank: IntArray,
-        slots: IntArray,
-    ) -> NDArray[np.int8]:
-        """`bob_autonomy.plausibility.implausible` of the fast path's deliveries, the same verdicts from the
-        same float64 operations, computed only where a check can fail: non_finite never (the neighbour
-        search refuses non-finite positions), too_far only when the limit is within the radio range (a
-        delivery is within it), jump only against a held message (`found`; `rank`: its round's age)."""
-        limits = self.security.limits
-        verdict = np.zeros(listener.size, dtype=np.int8)
+        self, now: float, near: IntArray, round_of: NDArray[np.int64]
+    ) -> tuple[IntArray, NDArray[np.int8]]:
+        """`bob_autonomy.plausibility.implausible` of the fast path's deliveries (candidates `near`, whose held
+        messages came in the rounds `round_of`): (index, verdict) of those that can fail, the same verdicts
+        from the same float64 operations; the others pass.
+
+        non_finite never (the neighbour search refuses non-finite positions); too_far only when its limit
+        is within the radio range (a delivery is within it); jump only when the held message came in before
+        the candidates were queried or slack_m is within the Verlet skin: since then no transmitter has
+        moved skin_m / 2 from where it was at the query, so its position now and in a later message are
+        less than skin_m apart.
+        """
+        limits, pairs = self.security.limits, self._pairs
         x, y = self.table.position[:, 0], self.table.position[:, 1]
-        held = np.flatnonzero(found)
-        if held.size:
-            by = sender[held]
-            row = self.n + slots[rank[held]] * self.transmitters + by
-            elapsed = np.maximum(now - np.array(self._round_heard_s), 0.0)  # s since each round came in
-            bound = limits.slack_m + limits.max_speed_mps * elapsed  # m, by round
-            jump = _exceeds(x[by] - x[row], y[by] - y[row], bound[rank[held]])
-            verdict[held[jump]] = JUMP
+        if not limits.max_distance_m > self.range_m * (1.0 + 1e-9) or not limits.slack_m > pairs.skin_m:
+            index = np.arange(near.size)
+        else:
+            index = np.flatnonzero(round_of < self._queried_in)
+        if index.size == 0:
+            return index, np.zeros(0, dtype=np.int8)
+        near, round_of = near[index], round_of[index]
+        sender = pairs.sender[near]
+        claimed_x, claimed_y = x[sender], y[sender]  # = the message rows' position, copied this round
+        heard = np.array(self._round_heard_s)
+        elapsed = np.maximum(now - heard, 0.0)  # s since each round came in
+        bound = np.full(self.rounds_kept + 1, np.nan)  # m, by rank; last: no message held (no check)
+        bound[: heard.size] = np.where(
+            self._rounds_held()[: heard.size], limits.slack_m + limits.max_speed_mps * elapsed, np.nan
+        )
+        slots = np.zeros(self.rounds_kept + 1, dtype=np.intp)
+        slots[: heard.size] = self._round_slot
+        rank = np.minimum(self._round - round_of, self.rounds_kept)
+        row = self.n + slots[rank] * self.transmitters + sender  # the held message's row (where one is held)
+        verdict = np.zeros(near.size, dtype=np.int8)
+        verdict[_exceeds(claimed_x - x[row], claimed_y - y[row], bound[rank], bound)] = JUMP
         if not limits.max_distance_m > self.range_m * (1.0 + 1e-9):
-            far = _exceeds(
-                x[sender] - x[listener], y[sender] - y[listener], np.full(sender.size, limits.max_distance_m)
-            )
+            listener = pairs.listener[near]
+            far_bound = np.array([limits.max_distance_m])
+            far = _exceeds(claimed_x - x[listener], claimed_y - y[listener], far_bound[np.zeros_like(near)], far_bound)
             verdict[far] = TOO_FAR
-        return verdict
+        return index, verdict
 
     def _secure_round(
         self, t: float, base: int, senders: IntArray, active: NDArray[np.bool_], listener: IntArray, sender: IntArray
@@ -517,13 +538,17 @@ class BroadcastMedium:
         return self.listener[keep], self.message[keep], age[keep]
 
 
-def _exceeds(dx: FloatArray, dy: FloatArray, bound: FloatArray) -> NDArray[np.bool_]:
-    """np.hypot(dx, dy) > bound (m), element by element, with the same result as that expression but
-    hypot (13 ns an element) evaluated only where the squared length is within 1e-12 of bound ** 2: hypot
-    is within one unit in the last place of the exact length, dx * dx + dy * dy within three of its
-    square, so farther from the bound both give the same answer. Bounds outside [1e-100, 1e100] m (where
-    squares could underflow or overflow) take hypot throughout."""
-    if bound.size == 0 or not (bound.min() >= 1e-100 and bound.max() <= 1e100):
+def _exceeds(dx: FloatArray, dy: FloatArray, bound: FloatArray, bounds: FloatArray) -> NDArray[np.bool_]:
+    """np.hypot(dx, dy) > bound (m; NaN: False), element by element, with the same result as that
+    expression but hypot (13 ns an element) evaluated only where the squared length is within 1e-12 of
+    bound ** 2: hypot is within one unit in the last place of the exact length, dx * dx + dy * dy within
+    three of its square, so farther from the bound both give the same answer. `bounds`: every value
+    `bound` takes; outside [1e-100, 1e100] m (where squares could underflow or overflow) hypot is used
+    throughout."""
+    finite = bounds[np.isfinite(bounds)]
+    if finite.size == 0:
+        return np.zeros(dx.size, dtype=bool)  # NaN bounds: no check
+    if not (finite.min() >= 1e-100 and finite.max() <= 1e100):
         return np.hypot(dx, dy) > bound
     length2 = dx * dx
     length2 += dy * dy

@@ -168,9 +168,9 @@ class MediumSecurity:
         intruders = spec.intruders
         self.m = len(intruders)
         self.intruder_position = np.array([i.position for i in intruders], dtype=float).reshape(-1, 2)
-        self.intruder_claimed = np.array(
-            [i.claimed_position or i.position for i in intruders], dtype=float
-        ).reshape(-1, 2)
+        self.intruder_claimed = np.array([i.claimed_position or i.position for i in intruders], dtype=float).reshape(
+            -1, 2
+        )
         self.intruder_claims = np.array([i.claims_agent for i in intruders], dtype=np.intp)
         self.intruder_heading = np.radians([i.heading_deg for i in intruders])
         self.intruder_reach_m = np.array([i.reach_m or range_m for i in intruders], dtype=float)
@@ -218,8 +218,13 @@ class MediumSecurity:
             state = AgentState(
                 int(table.ids[row]),
                 float(t),
-                Pose(float(table.position[row, 0]), float(table.position[row, 1]), float(table.heading[row]),
-                     float(table.velocity[row, 0]), float(table.velocity[row, 1])),
+                Pose(
+                    float(table.position[row, 0]),
+                    float(table.position[row, 1]),
+                    float(table.heading[row]),
+                    float(table.velocity[row, 0]),
+                    float(table.velocity[row, 1]),
+                ),
                 {name: table.memory[name][row] for name in fields},
             )
             try:

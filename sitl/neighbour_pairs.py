@@ -67,33 +67,36 @@ class NeighbourPairs:
         step2 = moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1]
         return not bool(np.max(step2, initial=0.0) <= self._move2)  # NaN compares False: stale
 
-    def rebuild(self, position: NDArray[np.float64], members: IntArray, extra_keys: KeyArray) -> None:
+    def rebuild(self, position: NDArray[np.float64], members: IntArray, extra_keys: KeyArray) -> IntArray:
         """Query the k-d tree over `members` (sorted agent indices) at `position` ((n, 2) m) for the pairs within
         range_m + skin_m; `extra_keys` (sorted listener * n + sender) are kept as candidates too, out of range
-        until the next query. Raises ValueError on non-finite positions (as cKDTree does)."""
+        until the next query. Returns where each of `extra_keys` now is among the candidates. Raises
+        ValueError on non-finite positions (as cKDTree does)."""
         where = position[members]
         pairs = cKDTree(where).query_pairs(self.range_m + self.skin_m, output_type="ndarray")
         first, second = members[pairs[:, 0]], members[pairs[:, 1]]
         low, high = np.minimum(first, second), np.maximum(first, second)
         u = low.size
-        listener = np.concatenate((low, high))
-        sender = np.concatenate((high, low))
-        keys = listener.astype(np.int64) * self.n + sender
-        half = np.concatenate((np.arange(u), np.arange(u)))
-        if extra_keys.size:
-            extra = extra_keys[~np.isin(extra_keys, keys, assume_unique=True)]
-            keys = np.concatenate((keys, extra))
-            half = np.concatenate((half, np.full(extra.size, u, dtype=np.intp)))
+        keys = np.concatenate((low, high)).astype(np.int64) * self.n + np.concatenate((high, low))
         order = np.argsort(keys)
-        self.keys = keys[order]
-        self._half = half[order]
-        self.listener, self.sender = np.divmod(self.keys, self.n)
-        self.listener = self.listener.astype(np.intp)
-        self.sender = self.sender.astype(np.intp)
+        keys = keys[order]
+        half = np.where(order < u, order, order - u)
+        at = np.searchsorted(keys, extra_keys)
+        missing = extra_keys[keys[np.minimum(at, keys.size - 1)] != extra_keys] if keys.size else extra_keys
+        if missing.size:  # held pairs now beyond range_m + skin_m
+            keys = np.concatenate((keys, missing))
+            half = np.concatenate((half, np.full(missing.size, u, dtype=np.intp)))
+            order = np.argsort(keys)
+            keys, half = keys[order], half[order]
+            at = np.searchsorted(keys, extra_keys)
+        self.keys, self._half = keys, half
+        listener, sender = np.divmod(keys, self.n)
+        self.listener, self.sender = listener.astype(np.intp), sender.astype(np.intp)
         self._first, self._second = low, high
         self.members = members.copy()
         self._anchor = where
         self.queries += 1
+        return at
 
     def in_range(self, position: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(C,) which candidates are within range_m of each other at `position` ((n, 2) m), by the test of

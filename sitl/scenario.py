@@ -200,7 +200,7 @@ class Group(BehaviorChoice):
     def _motorboat_keys(self) -> Group:
         given = [k for k in ("top_speed_mps", "turning_radius_m", "steering") if getattr(self, k) is not None]
         if given and self.body != "motorboat":
-            raise ValueError(f"{', '.join(given)}: only for body = \"motorboat\" (this group is {self.body!r})")
+            raise ValueError(f'{", ".join(given)}: only for body = "motorboat" (this group is {self.body!r})')
         if self.body == "motorboat":
             self.motorboat_params()  # a boat that cannot be built (e.g. a turn harder than a hull can pull) is refused
         return self

@@ -113,7 +113,12 @@ class VehicleEndpoint:
                 if self.errors <= MAX_LOGGED_ERRORS:
                     log.warning(
                         "vehicle %d: datagram of %d bytes from %s:%d not handled (%s: %s); going on",
-                        self.vehicle.system_id, len(data), sender[0], sender[1], type(error).__name__, error,
+                        self.vehicle.system_id,
+                        len(data),
+                        sender[0],
+                        sender[1],
+                        type(error).__name__,
+                        error,
                     )
 
     def send(self, data: bytes) -> None:

@@ -14,6 +14,7 @@ from firmware_bridge.readings import SensorReadings
 if TYPE_CHECKING:
     from sitl.mavlink_vehicle import SimulatedVehicle
 
+
 def encode_readings(
     readings: SensorReadings,
     t_s: float,

@@ -76,7 +76,12 @@ class MavlinkTransport:
         self.kind = kind
         self.vehicles = [
             SimulatedVehicle(
-                first_system_id + k, kind, max_actuator, failsafe_s=failsafe_s, armed=True, streams=streams,
+                first_system_id + k,
+                kind,
+                max_actuator,
+                failsafe_s=failsafe_s,
+                armed=True,
+                streams=streams,
                 params=vehicle_params,
             )
             for k in range(n)
