@@ -212,8 +212,8 @@ class BroadcastMedium:
         """New candidate pairs around the transmitting agents `senders`; the messages held are carried over
         (their pairs stay candidates until they expire)."""
         pairs, held = self._pairs, self._held_index
-        at = pairs.rebuild(self.table.position, senders, pairs.keys[held])
-        rounds, self._held_round = self._held_round[held], np.full(pairs.keys.size, _NEVER, dtype=np.int64)
+        at = pairs.rebuild(self.table.position, senders, pairs.keys(held))
+        rounds, self._held_round = self._held_round[held], np.full(pairs.size, _NEVER, dtype=np.int64)
         self._held_round[at] = rounds
         self._held_index = at
         self._queried_in = self._round + 1
@@ -251,8 +251,8 @@ class BroadcastMedium:
         self.listener = self._pairs.listener[self._held_index]
         self.sender = self._pairs.sender[self._held_index]
         rank = self._round - self._held_round[self._held_index]
-        slots = np.array(self._round_slot, dtype=np.intp)
-        self.message = self.n + slots[rank] * self.transmitters + self.sender
+        first_row = self.n + np.array(self._round_slot, dtype=np.intp) * self.transmitters  # of each round's slot
+        self.message = first_row[rank] + self.sender
         self.heard_at = np.array(self._round_heard_s)[rank]
 
     def _vet_fast(self, now: float, near: IntArray) -> NDArray[np.bool_] | None:
@@ -534,7 +534,15 @@ class BroadcastMedium:
     def heard(self, t: float, listening: NDArray[np.bool_]) -> tuple[IntArray, IntArray, FloatArray]:
         """(listener, table row of the message, age s) of every unexpired message heard, by listener then sender."""
         age = t - self.heard_at
-        keep = (age >= -1e-9) & (age <= self.expiry_s + 1e-9) & listening[self.listener]
+        # Every message's arrival time is its round's: when every round is within the ages kept, so is
+        # every message (the same float64 differences), and only who listens selects.
+        rounds = t - np.array(self._round_heard_s)
+        if bool(np.all((rounds >= -1e-9) & (rounds <= self.expiry_s + 1e-9))):
+            if bool(np.all(listening)):
+                return self.listener.copy(), self.message.copy(), age
+            keep = listening[self.listener]
+        else:
+            keep = (age >= -1e-9) & (age <= self.expiry_s + 1e-9) & listening[self.listener]
         return self.listener[keep], self.message[keep], age[keep]
 
 

@@ -49,8 +49,8 @@ class NeighbourPairs:
         self._anchor = np.zeros((0, 2))  # their positions then, m
         self._first = np.zeros(0, dtype=np.intp)  # unordered candidate pairs (first, second), first < second
         self._second = np.zeros(0, dtype=np.intp)
-        self.keys = np.zeros(0, dtype=np.int64)  # (C,) sorted listener * n + sender of the ordered candidates
-        self.listener = np.zeros(0, dtype=np.intp)  # (C,) the candidates' listener and sender
+        # (C,) the ordered candidates' listener and sender, sorted by key listener * n + sender
+        self.listener = np.zeros(0, dtype=np.intp)
         self.sender = np.zeros(0, dtype=np.intp)
         # (C,) the unordered pair of each ordered candidate; an index past the unordered pairs for the kept
         # pairs that were not found within range_m + skin_m (never in range before the next query).
@@ -89,7 +89,7 @@ class NeighbourPairs:
             order = np.argsort(keys)
             keys, half = keys[order], half[order]
             at = np.searchsorted(keys, extra_keys)
-        self.keys, self._half = keys, half
+        self._half = half
         listener, sender = np.divmod(keys, self.n)
         self.listener, self.sender = listener.astype(np.intp), sender.astype(np.intp)
         self._first, self._second = low, high
@@ -98,10 +98,20 @@ class NeighbourPairs:
         self.queries += 1
         return at
 
+    @property
+    def size(self) -> int:
+        """Number of ordered candidate pairs."""
+        return self.listener.size
+
+    def keys(self, index: IntArray) -> KeyArray:
+        """Keys listener * n + sender of the candidates `index` (sorted where `index` is)."""
+        return self.listener[index].astype(np.int64) * self.n + self.sender[index]
+
     def in_range(self, position: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(C,) which candidates are within range_m of each other at `position` ((n, 2) m), by the test of
         cKDTree.query_pairs (squared distance <= range_m * range_m)."""
-        x, y = position[:, 0], position[:, 1]
+        # contiguous copies of the agents' coordinates: gathers from them are ~2x faster than from the columns
+        x, y = np.ascontiguousarray(position[: self.n, 0]), np.ascontiguousarray(position[: self.n, 1])
         dx = x[self._first] - x[self._second]
         dy = y[self._first] - y[self._second]
         dx *= dx

@@ -171,7 +171,7 @@ def test_kept_pairs_beyond_the_skin_are_never_in_range() -> None:
     position = np.array([[0.0, 0.0], [5.0, 0.0], [100.0, 0.0]])
     pairs = NeighbourPairs(3, 10.0, 1.0)
     at = pairs.rebuild(position, np.arange(2), np.array([0 * 3 + 2, 2 * 3 + 1], dtype=np.int64))
-    assert pairs.keys[at].tolist() == [2, 7]
+    assert pairs.keys(at).tolist() == [2, 7]
     near = pairs.in_range(position)
     assert (pairs.listener[near].tolist(), pairs.sender[near].tolist()) == ([0, 1], [1, 0])
 
