@@ -18,7 +18,7 @@ from sitl.mesh_security import FaultSpec, MediumSecurity, MeshSecuritySpec, Plau
 from sitl.neighbour_pairs import NeighbourPairs
 
 GOAL = {"goal": MemorySpec(shape=(2,))}
-CHECKS = PlausibilitySpec(max_speed_mps=2.0, slack_m=3.0)  # slack above the Verlet skin (1.5 m at 15 m)
+CHECKS = PlausibilitySpec(max_speed_mps=2.0, slack_m=3.0)  # Verlet skin: half the slack, 1.5 m
 
 
 @dataclass
@@ -107,7 +107,7 @@ KEY = hashlib.sha256(b"fast path").digest()
 CASES = {
     "no security": Case(),
     "plausibility, jumps": Case(spec=MeshSecuritySpec(plausibility=CHECKS)),
-    "slack within the skin": Case(
+    "tiny slack (skin 2.5 cm)": Case(
         spec=MeshSecuritySpec(plausibility=PlausibilitySpec(max_speed_mps=0.1, slack_m=0.05)), period_s=0.2
     ),
     "too far": Case(spec=MeshSecuritySpec(plausibility=CHECKS), security_range_m=2.0, drift_m=0.3, p_teleport=0.3),
