@@ -7,6 +7,14 @@ of transmitters around the listener) after its latency. Messages live in a ring 
 the last message it heard, and forgets it `expiry_s` after hearing it.
 Neighbour search uses a k-d tree, never all pairs.
 
+Two paths give the same deliveries, counters and heard messages. Without a
+radio channel or intruders (the fast path), the pairs in range are tested from a
+Verlet list (`sitl.neighbour_pairs`: the k-d tree is queried only when an agent
+has moved a tenth of the range) and what each listener holds is one entry per
+candidate pair, overwritten in place; otherwise (the general path) the heard
+messages are sorted int64 keys, merged and searched every round. At 10,000 agents
+broadcasting every step a round costs ~2 ms on the fast path, ~22 ms on the general one.
+
 Mesh security (`sitl.mesh_security.MediumSecurity`, optional): intruders
 transmit in every round as extra transmitters (message rows after the
 agents'); faulty agents' messages carry their heading turned; and every new
