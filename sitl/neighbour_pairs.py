@@ -63,7 +63,7 @@ class NeighbourPairs:
         non-finite position counts as moved)."""
         if self.members is None or not np.array_equal(members, self.members):
             return True
-        moved = position[members] - self._anchor
+        moved = (position[: self.n] if members.size == self.n else position[members]) - self._anchor
         step2 = moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1]
         return not bool(np.max(step2, initial=0.0) <= self._move2)  # NaN compares False: stale
 
