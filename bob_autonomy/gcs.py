@@ -45,11 +45,9 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.gcs_checks import command_problem
 from bob_autonomy.gcs_codec import (
     GcsCounters,
     MavlinkCodec,
@@ -58,9 +56,11 @@ from bob_autonomy.gcs_codec import (
     passphrase_to_key,
     signing_timestamp,
 )
+from bob_autonomy.gcs_commands import AutopilotCommand, CommandProtocol
 from bob_autonomy.gcs_mission import MissionProtocol, Upload
+from bob_autonomy.gcs_params import ParameterProtocol
 from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.params import FAILSAFE_ACTIONS, LatLon, ParamError, ParameterStore, validate_latlon
+from bob_autonomy.params import FAILSAFE_ACTIONS, LatLon, ParameterStore
 
 __all__ = [
     "COMPONENT_ID",
@@ -79,8 +79,6 @@ logger = logging.getLogger(__name__)
 COMPONENT_ID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 STATUSTEXT_LEN = 50
 MAX_OUTGOING = 10_000  # frames held for outgoing() at most
-REFUSAL_LOG_FIRST = 10  # out-of-range refusals logged one by one; then at most one line per REFUSAL_LOG_PERIOD_S
-REFUSAL_LOG_PERIOD_S = 10.0
 SECURITY_LOG_PERIOD_S = 60.0  # clock s: how often tick() logs the rejected-input counters when they changed
 
 CAPABILITIES = (
@@ -92,49 +90,12 @@ CAPABILITIES = (
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
 )
-ARM_FORCE_MAGIC = 21196.0  # param2 of MAV_CMD_COMPONENT_ARM_DISARM that forces it
 
 
 # -- the component ----------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class AutopilotCommand:
-    """A command for the autopilot that came to us; the process passes it on (e.g. with
-    firmware_bridge.commands.command_long_arm / set_mode). `kind` is "arm", "disarm" or "set_mode";
-    `force` (arm / disarm with param2 = 21196); `base_mode` and `custom_mode` of DO_SET_MODE (for an
-    ArduPilot Rover, custom_mode is the mode number: HOLD 4, AUTO 10, GUIDED 15, ...); `params` the seven
-    parameters as received, a NaN of an unused one (MAVLink's "default") as 0; `source` the (system,
-    component) that sent it; `t_s` our clock at reception. Every number in it is finite (ValueError if not):
-    nothing non-finite can reach the autopilot through it."""
-
-    kind: str
-    command: int
-    params: tuple[float, ...]
-    source: tuple[int, int]
-    t_s: float
-    force: bool = False
-    base_mode: int | None = None
-    custom_mode: int | None = None
-
-    def __post_init__(self) -> None:
-        numbers = [*self.params, self.t_s, *(v for v in (self.base_mode, self.custom_mode) if v is not None)]
-        if not all(math.isfinite(v) for v in numbers):
-            raise ValueError(f"{self.kind} command {self.command} with a value that is not finite: {numbers}")
-
-
-@dataclass
-class _Command:
-    command: int
-    params: tuple[float, float, float, float, float, float, float]
-    latlon: tuple[float, float]  # params 5 and 6 read as latitude and longitude, deg
-    source: tuple[int, int]
-
-
-Handler = Callable[["GcsComponent", _Command], int]
-
-
-class GcsComponent(MissionProtocol):
+class GcsComponent(ParameterProtocol, CommandProtocol, MissionProtocol):
     """The autonomy process's MAVLink component (see the module docstring).
 
     system_id: the vessel's MAVLink system id (the autopilot's). params: the ParameterStore it serves.
@@ -417,176 +378,6 @@ class GcsComponent(MissionProtocol):
         zeros8 = [0] * 8
         self._queue(self.codec.mav.autopilot_version_encode(CAPABILITIES, 0, 0, 0, 0, zeros8, zeros8, zeros8, 0, 0, 0))
 
-    # -- parameter protocol --------------------------------------------------------------------------------
-
-    def _send_param(self, name: str) -> None:
-        value = float(self.params.get(name))
-        spec = self.params.spec(name)
-        self._queue(
-            self.codec.mav.param_value_encode(
-                name.encode("ascii"), value, spec.mav_type, len(self.params), self.params.index(name)
-            )
-        )
-
-    def _param_request_list(self, msg) -> None:
-        for name in self.params.names():
-            self._send_param(name)
-
-    def _param_request_read(self, msg) -> None:
-        index = msg.param_index  # -1: by name (MAVLink); otherwise 0 .. count - 1
-        if not -1 <= index < len(self.params):
-            self._refuse_value(f"PARAM_REQUEST_READ: param_index {index} outside [-1, {len(self.params) - 1}]")
-            return
-        try:
-            name = self.params.name_at(index) if index >= 0 else msg.param_id
-            self.params.spec(name)
-        except ParamError as exc:
-            self.notify(mavlink.MAV_SEVERITY_WARNING, f"PARAM_REQUEST_READ: {exc}")
-            return
-        self._send_param(name)
-
-    def _param_set(self, msg) -> None:
-        name = msg.param_id
-        if name not in self.params:
-            self.counters.params_rejected += 1
-            self.notify(mavlink.MAV_SEVERITY_WARNING, f"PARAM_SET: unknown parameter {name!r}")
-            return
-        try:
-            self.params.set(name, float(msg.param_value))  # checks finite, integral for INT32, in range
-        except ParamError as exc:
-            self.counters.params_rejected += 1
-            self._refuse_value(f"PARAM_SET refused: {exc}")  # names the parameter and says why
-        else:
-            self.counters.params_set += 1
-            self._persist_warning()
-        self._send_param(name)
-
-    def _persist_warning(self) -> None:
-        if self.params.persist_error:
-            self.notify(mavlink.MAV_SEVERITY_ERROR, self.params.persist_error)
-
-    def _refuse_value(self, text: str) -> None:
-        """A message refused for a value that is not finite or out of its field's range: counted, told to the
-        ground station (STATUSTEXT), logged (the first REFUSAL_LOG_FIRST, then one line per period)."""
-        c = self.counters
-        c.out_of_range += 1
-        self._statustext(mavlink.MAV_SEVERITY_WARNING, text)
-        now = float(self.clock())
-        if c.out_of_range <= REFUSAL_LOG_FIRST or now - self._last_refusal_log_s >= REFUSAL_LOG_PERIOD_S:
-            self._last_refusal_log_s = now
-            logger.warning("%s (%d messages refused for out-of-range values so far)", text, c.out_of_range)
-
-    # -- commands ------------------------------------------------------------------------------------------
-
-    def _command_long(self, msg) -> None:
-        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-        cmd = _Command(msg.command, params, (msg.param5, msg.param6), (msg.get_srcSystem(), msg.get_srcComponent()))
-        self._run_command(cmd)
-
-    def _command_int(self, msg) -> None:
-        params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
-        cmd = _Command(msg.command, params, (msg.x / 1e7, msg.y / 1e7), (msg.get_srcSystem(), msg.get_srcComponent()))
-        self._run_command(cmd, msg.frame)
-
-    def _run_command(self, cmd: _Command, frame: int | None = None) -> None:
-        """Check the command's values, run its handler, answer with a COMMAND_ACK. frame: COMMAND_INT's."""
-        self.counters.commands += 1
-        handler = _COMMANDS.get(cmd.command)
-        problem = command_problem(cmd.command, cmd.params, cmd.latlon, frame)
-        if handler is None:
-            self.counters.commands_unsupported += 1
-            result = mavlink.MAV_RESULT_UNSUPPORTED
-        elif problem is not None:
-            self._refuse_value(f"{_command_name(cmd.command)} refused: {problem}")
-            result = mavlink.MAV_RESULT_DENIED
-        else:
-            try:
-                result = handler(self, cmd)
-            except ParamError as exc:  # a value the parameters' own ranges refuse
-                self._refuse_value(f"{_command_name(cmd.command)} refused: {exc}")
-                result = mavlink.MAV_RESULT_DENIED
-            except Exception:
-                self.counters.handler_errors += 1
-                logger.exception("command %s failed", cmd.command)
-                result = mavlink.MAV_RESULT_FAILED
-        if result == mavlink.MAV_RESULT_DENIED:
-            self.counters.commands_denied += 1
-        self._queue(self.codec.mav.command_ack_encode(cmd.command, result, 0, 0, cmd.source[0], cmd.source[1]))
-
-    def _cmd_mission_start(self, cmd: _Command) -> int:
-        self.behavior_running = True
-        self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour {self.params.behavior_name} started")
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_pause_continue(self, cmd: _Command) -> int:
-        action = cmd.params[0]
-        if action == 0:
-            self.behavior_running = False
-            self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour {self.params.behavior_name} stopped: hold")
-        elif action == 1:
-            self.behavior_running = True
-            self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour {self.params.behavior_name} continued")
-        else:
-            raise ParamError(f"param1 must be 0 (pause) or 1 (continue), got {action!r}")
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_forward(self, cmd: _Command) -> int:
-        p = tuple(0.0 if math.isnan(v) else float(v) for v in cmd.params)  # NaN: an unused parameter's default
-        now = float(self.clock())
-        if cmd.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            if p[0] not in (0.0, 1.0):
-                raise ParamError(f"param1 must be 1 (arm) or 0 (disarm), got {p[0]!r}")
-            kind = "arm" if p[0] == 1.0 else "disarm"
-            command = AutopilotCommand(kind, cmd.command, p, cmd.source, now, force=p[1] == ARM_FORCE_MAGIC)
-        else:
-            if not all(math.isfinite(v) and 0 <= v < 2**32 and v == int(v) for v in p[:2]):
-                raise ParamError(f"base mode {p[0]!r} and custom mode {p[1]!r} must be whole numbers")
-            command = AutopilotCommand(
-                "set_mode", cmd.command, p, cmd.source, now, base_mode=int(p[0]), custom_mode=int(p[1])
-            )
-        self.pending_autopilot.append(command)
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_goal(self, cmd: _Command) -> int:
-        lat, lon = validate_latlon(cmd.latlon, "goal")
-        self.params.set_goals([(lat, lon)])
-        self._persist_warning()
-        self.notify(mavlink.MAV_SEVERITY_INFO, f"goal set to {lat:.7f}, {lon:.7f}")
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_follow(self, cmd: _Command) -> int:
-        leader = self.params.set("BOB_LEADER_ID", cmd.params[0])
-        self._persist_warning()
-        self.notify(mavlink.MAV_SEVERITY_INFO, f"leader set to {leader}" if leader else "leader cleared")
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_behavior(self, cmd: _Command) -> int:
-        self.params.set("BOB_BEHAVIOR", cmd.params[0])
-        self._persist_warning()
-        self.notify(mavlink.MAV_SEVERITY_INFO, f"behaviour set to {self.params.behavior_name}")
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_fence_enable(self, cmd: _Command) -> int:
-        self.params.set("BOB_FENCE_EN", cmd.params[0])
-        self._persist_warning()
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_request_message(self, cmd: _Command) -> int:
-        wanted = cmd.params[0]
-        if wanted == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            self._send_autopilot_version()
-        elif wanted == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
-            self._send_heartbeat()
-        elif wanted == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT and self._position is not None:
-            self._send_position()
-        else:
-            return mavlink.MAV_RESULT_DENIED
-        return mavlink.MAV_RESULT_ACCEPTED
-
-    def _cmd_capabilities(self, cmd: _Command) -> int:
-        self._send_autopilot_version()
-        return mavlink.MAV_RESULT_ACCEPTED
-
 
 _HANDLERS: dict[str, Callable[[GcsComponent, object], None]] = {
     "PARAM_REQUEST_LIST": GcsComponent._param_request_list,
@@ -604,28 +395,8 @@ _HANDLERS: dict[str, Callable[[GcsComponent, object], None]] = {
     "MISSION_CLEAR_ALL": GcsComponent._mission_clear_all,
 }
 
-_COMMANDS: dict[int, Handler] = {
-    mavlink.MAV_CMD_MISSION_START: GcsComponent._cmd_mission_start,
-    mavlink.MAV_CMD_DO_PAUSE_CONTINUE: GcsComponent._cmd_pause_continue,
-    mavlink.MAV_CMD_COMPONENT_ARM_DISARM: GcsComponent._cmd_forward,
-    mavlink.MAV_CMD_DO_SET_MODE: GcsComponent._cmd_forward,
-    mavlink.MAV_CMD_DO_REPOSITION: GcsComponent._cmd_goal,
-    mavlink.MAV_CMD_NAV_WAYPOINT: GcsComponent._cmd_goal,
-    mavlink.MAV_CMD_DO_FOLLOW: GcsComponent._cmd_follow,
-    mavlink.MAV_CMD_USER_1: GcsComponent._cmd_behavior,
-    mavlink.MAV_CMD_DO_FENCE_ENABLE: GcsComponent._cmd_fence_enable,
-    mavlink.MAV_CMD_REQUEST_MESSAGE: GcsComponent._cmd_request_message,
-    mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: GcsComponent._cmd_capabilities,
-}
-
-
 _LOG_LEVEL = {0: logging.CRITICAL, 1: logging.CRITICAL, 2: logging.CRITICAL, 3: logging.ERROR,
               4: logging.WARNING, 5: logging.INFO, 6: logging.INFO, 7: logging.DEBUG}  # fmt: skip
-
-
-def _command_name(command: int) -> str:
-    entry = mavlink.enums["MAV_CMD"].get(command)
-    return entry.name if entry is not None else f"command {command}"
 
 
 def _clamp_int32(v: int) -> int:
