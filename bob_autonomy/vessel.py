@@ -39,30 +39,19 @@ from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import LinkMesh
 from bob_autonomy.motorboat_control import MotorboatModel
 from bob_autonomy.params import ParameterStore
-from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
+from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline
 from bob_autonomy.senses import EbotSenses
 from bob_autonomy.supervisor import Supervisor, behavior_params
 from bob_autonomy.vehicle_link import BUOY, EBOT, VehicleLink
 from bob_autonomy.velocity_control import BuoyModel
-from firmware_bridge.commands import ROVER_MODES, heartbeat
-from firmware_bridge.links import Link, LinkError, open_link
+from bob_autonomy.vessel_driving import AutopilotDriving
+from bob_autonomy.vessel_links import VesselLinks
+from bob_autonomy.vessel_pipelines import buoy_pipeline, ebot_pipeline, motorboat_pipeline
+from firmware_bridge.commands import heartbeat
+from firmware_bridge.links import Link, open_link
 from firmware_bridge.tlog import TlogWriter
 
 logger = logging.getLogger(__name__)
-
-
-def _datagrams(frames: list[bytes]) -> list[bytes]:
-    """Whole frames packed into datagrams of at most DATAGRAM_BYTES (a frame is never split)."""
-    out: list[bytes] = []
-    current = bytearray()
-    for frame in frames:
-        if current and len(current) + len(frame) > DATAGRAM_BYTES:
-            out.append(bytes(current))
-            current = bytearray()
-        current += frame
-    if current:
-        out.append(bytes(current))
-    return out
 
 
 class VehicleError(RuntimeError):
@@ -70,12 +59,7 @@ class VehicleError(RuntimeError):
 
 
 ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
-HEADING_KP = 0.15  # steering per rad of heading error (omni frames)
-HEADING_KD = 0.05  # steering per rad/s of yaw rate
-HEADING_STEER_MAX = 0.15
 STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
-MAX_ROUTED_BACKLOG = 2000  # frames; a ground-station link that cannot keep up loses the oldest
-DATAGRAM_BYTES = 1200  # MAVLink frames per UDP datagram up to this size (one frame may be larger)
 
 
 @dataclass(frozen=True)
@@ -209,7 +193,7 @@ class VesselStats:
         return out
 
 
-class Vessel:
+class Vessel(VesselLinks, AutopilotDriving):
     """One autonomy process: vehicle link, estimator and controller, agent and mesh. `run()` until `stop()`."""
 
     def __init__(self, config: VesselConfig, clock: ScaledWallClock | None = None) -> None:
@@ -221,13 +205,13 @@ class Vessel:
         if c.kind == BUOY:
             model = BuoyModel() if c.top_speed_mps is None else BuoyModel.for_top_speed(c.top_speed_mps)
             self.max_actuator = model.max_thrust_n
-            self.pipeline: BuoyPipeline | EbotPipeline = self._buoy_pipeline(model)
+            self.pipeline: BuoyPipeline | EbotPipeline = buoy_pipeline(c, model)
         elif c.kind == EBOT:
             self.max_actuator = c.top_speed_mps or c.ebot.max_wheel_speed_mps
-            self.pipeline = self._ebot_pipeline(self.max_actuator)
+            self.pipeline = ebot_pipeline(c, self.max_actuator)
         elif c.kind == MOTORBOAT:
             self.max_actuator = 1.0  # (throttle, steering), each in [-1, 1]
-            self.pipeline = self._motorboat_pipeline(MotorboatModel.for_top_speed(c.top_speed_mps or 2.0))
+            self.pipeline = motorboat_pipeline(c, MotorboatModel.for_top_speed(c.top_speed_mps or 2.0))
         else:
             raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy, motorboat or ebot")
         self.frame = LocalFrame(*c.origin)
@@ -281,132 +265,7 @@ class Vessel:
         self._ignoring_since: float | None = None
         self._ignoring_warned = False
 
-    def _ebot_pipeline(self, max_wheel_speed_mps: float) -> EbotPipeline:
-        c, e = self.config, self.config.ebot
-        x, y, heading = c.start_pose
-        return EbotPipeline(
-            np.array([[x, y]]),
-            np.array([heading]),
-            e.wheel_base_m,
-            max_wheel_speed_mps,
-            e.metres_per_tick,
-            estimator=c.estimator,
-            controller=c.controller,
-            dt_s=c.dt_s,
-            frame=LocalFrame(*c.origin),
-        )
-
-    def _buoy_pipeline(self, model: BuoyModel, *, on_ground: bool = False) -> BuoyPipeline:
-        c = self.config
-        return BuoyPipeline(
-            1,
-            LocalFrame(*c.origin),
-            np.array([model.max_thrust_n * c.max_thrust_fraction]),
-            estimator=c.estimator,
-            controller=c.controller,
-            dt_s=c.dt_s,
-            model=model,
-            on_ground=on_ground,
-        )
-
-    def _motorboat_pipeline(self, model: MotorboatModel) -> MotorboatPipeline:
-        c = self.config
-        return MotorboatPipeline(
-            1, LocalFrame(*c.origin), model, c.max_thrust_fraction, estimator=c.estimator, controller=c.controller,
-            dt_s=c.dt_s,
-        )  # fmt: skip
-
     # -- link ------------------------------------------------------------------------------------------
-
-    def _vehicle_message(self, msg) -> None:
-        """Every message decoded from the vehicle link: to the tlog, and the autopilot's to the session."""
-        if self.tlog is not None:
-            self.tlog.write_message(msg)
-        self.autopilot.handle(msg)
-        if self.gcs_link is not None and msg.get_srcSystem() == self.config.system_id:
-            # The vehicle's own traffic goes on to the ground station (mavlink-router's job on a companion).
-            self._from_vehicle.append(bytes(msg.get_msgbuf()))
-            if len(self._from_vehicle) > MAX_ROUTED_BACKLOG:
-                del self._from_vehicle[: len(self._from_vehicle) - MAX_ROUTED_BACKLOG]
-
-    def _send(self, data: bytes) -> None:
-        if self.tlog is not None:
-            self.tlog.write_frame(data)  # every command is one frame
-        try:
-            self.vehicle_link.write(data)
-        except LinkError as error:
-            self.stats.link_errors += 1
-            logger.error("vehicle link write failed (%d so far): %s", self.stats.link_errors, error)
-
-    def pump(self, wait_wall_s: float = 0.0) -> None:
-        """Read and decode what the vehicle sent, waiting at most `wait_wall_s` for the first bytes."""
-        timeout = max(0.0, wait_wall_s)
-        while True:
-            try:
-                data = self.vehicle_link.read(65535, timeout)
-            except LinkError as error:
-                self.stats.link_errors += 1
-                logger.error("vehicle link read failed (%d so far): %s", self.stats.link_errors, error)
-                time.sleep(min(timeout, 0.1))
-                return
-            if not data:
-                return
-            timeout = 0.0
-            readings = self.vehicle.receive(data)
-            if readings:
-                self._last_reading_wall_s = time.perf_counter()
-                self.stats.readings += len(readings)
-                try:
-                    self.pipeline.feed(readings)
-                    if self.sensing is not None:
-                        self.sensing.feed(readings)
-                except Exception:  # one bad reading must not stop the vessel: count it, log it, go on
-                    self.stats.reading_errors += 1
-                    logger.exception("readings could not be fused (%d so far)", self.stats.reading_errors)
-
-    def _pump_and_serve(self, wait_wall_s: float) -> None:
-        """Read the vehicle link and serve the ground station (during the start-up, which the GCS sees)."""
-        self.pump(wait_wall_s)
-        self.serve_gcs()
-
-    def serve_gcs(self) -> None:
-        """Exchange what is due with the ground station(s): read their datagrams, answer, pass on autopilot
-        commands (arm, disarm, set mode) to the vehicle."""
-        gcs, link = self.gcs, self.gcs_link
-        while link is not None:
-            try:
-                data, sender = link.read_from(65535, 0.0)
-            except LinkError as error:
-                self.stats.link_errors += 1
-                logger.warning("ground-station link read failed: %s", error)
-                break
-            if not data:
-                break
-            if gcs.receive(data, datagram=True):  # frames passed the checks (signature when keyed): answer it
-                link.confirm_peer(sender)
-        for frame in gcs.take_for_autopilot():
-            self.stats.routed_to_vehicle += 1
-            self._send(frame)
-        for command in gcs.take_autopilot_commands():
-            if command.kind in ("arm", "disarm"):
-                self._send(self.vehicle.arm(command.kind == "arm"))
-            elif command.kind == "set_mode" and command.custom_mode is not None:
-                self._send(self.vehicle.set_mode(int(command.custom_mode)))
-        gcs.tick()
-        own = gcs.outgoing()
-        if self.tlog is not None:
-            for frame in own:
-                self.tlog.write_frame(frame)
-        routed, self._from_vehicle = self._from_vehicle, []
-        self.stats.routed_to_gcs += len(routed)
-        if link is None:
-            return
-        for datagram in _datagrams(own + routed):
-            try:
-                link.write(datagram)
-            except LinkError as error:
-                self.stats.link_errors += 1
-                logger.warning("ground-station link write failed: %s", error)
 
     def _report_position(self, now: float) -> None:
         e = self.pipeline.estimate(now)
@@ -462,7 +321,7 @@ class Vessel:
             # model that vehicle.
             top = c.top_speed_mps or speed
             model = BuoyModel() if top is None else BuoyModel.for_top_speed(top)
-            self.pipeline = self.body.pipeline = self._buoy_pipeline(model, on_ground=on_ground)
+            self.pipeline = self.body.pipeline = buoy_pipeline(self.config, model, on_ground=on_ground)
             logger.info(
                 "vessel model: top speed %s m/s at full throttle, %s", top, "on the ground" if on_ground else "afloat"
             )
@@ -471,13 +330,13 @@ class Vessel:
             # (TURN_RADIUS): the MPC plans with that boat.
             top = min(max(c.top_speed_mps or speed or 2.0, 0.1), 50.0)  # what MotorboatModel takes
             model = MotorboatModel.for_top_speed(top, profile.turn_radius_m)
-            self.pipeline = self.body.pipeline = self._motorboat_pipeline(model)
+            self.pipeline = self.body.pipeline = motorboat_pipeline(self.config, model)
             radius = model.turning_radius_m
             logger.info("motorboat model: %.2f m/s at full throttle, turning radius %.2f m", top, radius)
         if c.kind == EBOT and c.top_speed_mps is None and speed is not None:
             # Wheels at full throttle move this fast (an eBot's 0.2 m/s is not a rover's): commands scale to it.
             self.max_actuator = speed
-            self.pipeline = self.body.pipeline = self._ebot_pipeline(speed)
+            self.pipeline = self.body.pipeline = ebot_pipeline(self.config, speed)
             logger.info("vessel model: wheel speed %.2f m/s at full throttle (from the autopilot)", speed)
         if c.kind == BUOY and profile.lateral_capable:
             self._hold_heading = True
@@ -570,68 +429,6 @@ class Vessel:
     def stop(self) -> None:
         """Ask `run()` to finish (safe from a signal handler or another thread)."""
         self._stop.set()
-
-    def _override(self, actuator: np.ndarray, *, hold_heading: bool = False) -> bytes:
-        """RC overrides for a buoy's body-frame thrust (x forward, y left; N), a motorboat's (throttle, steering)
-        or an eBot's wheel speeds (left, right; m/s), through the autopilot's RC map and calibration
-        (`AutopilotSession.override`)."""
-        a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2)) / self.max_actuator
-        if self.config.kind == MOTORBOAT:
-            return self.autopilot.override(a[1], a[0], None)
-        if self.config.kind == BUOY:
-            steering = self._heading_hold_steering() if hold_heading else 0.0
-            return self.autopilot.override(steering, a[0], -a[1])
-        return self.autopilot.override((a[0] - a[1]) / 2.0, (a[0] + a[1]) / 2.0, None)
-
-    def _heading_hold_steering(self) -> float:
-        """Steering (positive = turn right) that holds the hull at the heading it had when driving began: on an
-        omni frame the thrust goes in any direction, so nothing else stops the hull from wandering (issue #18).
-        PD on the autopilot's own attitude (ATTITUDE: fresh and low-lag): u = -kp e + kd r, e = reference - heading
-        (rad, counter-clockwise positive), r the counter-clockwise yaw rate (rad/s), |u| <= HEADING_STEER_MAX."""
-        a = self.autopilot
-        if not self._hold_heading or not math.isfinite(a.heading_rad) or a.clock() - a.attitude_t > 1.0:
-            return 0.0
-        if self._heading_ref is None:
-            self._heading_ref = a.heading_rad
-        error = math.remainder(self._heading_ref - a.heading_rad, 2 * math.pi)
-        u = -HEADING_KP * error + HEADING_KD * a.yaw_rate_radps
-        return float(np.clip(u, -HEADING_STEER_MAX, HEADING_STEER_MAX))
-
-    def _watch_autopilot(self, now: float) -> None:
-        """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground
-        station), our overrides not taken, or telemetry too slow for the estimator."""
-        a = self.autopilot
-        wanted = ROVER_MODES[self.config.autopilot.mode]
-        obeying = a.custom_mode is None or a.custom_mode == wanted
-        if obeying != self._obeying:
-            if obeying:
-                text = f"vehicle {self.config.system_id} back in {self.config.autopilot.mode}: driving again"
-            else:
-                text = (
-                    f"vehicle {self.config.system_id} is in {a.mode_name()}, not {self.config.autopilot.mode}: it "
-                    "ignores our commands (a failsafe or a ground station?); commanding neutral until it is back"
-                )
-            logger.warning("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
-            self._obeying = obeying
-        ignoring = a.ignoring_overrides(now)
-        if ignoring and self._ignoring_since is None:
-            self._ignoring_since = now
-        elif not ignoring:
-            if self._ignoring_warned:
-                logger.warning("vehicle %d takes our RC overrides again", self.config.system_id)
-            self._ignoring_since, self._ignoring_warned = None, False
-        if self._ignoring_since is not None and now - self._ignoring_since > 2.0 and not self._ignoring_warned:
-            self._ignoring_warned = True
-            text = (
-                f"vehicle {self.config.system_id} does not apply our RC overrides (its RC_CHANNELS differ): "
-                f"check MAV_GCS_SYSID = {a.encoder.mav.srcSystem} and RC_OVERRIDE_TIME > 0"
-            )
-            logger.error("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
-        for text in a.slow_streams(now):
-            logger.warning("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
 
     def _linger(self, seconds: float, frame: bytes | None) -> None:
         """Send `frame` every control period for `seconds` (wall) while reading the link, so that the autopilot
