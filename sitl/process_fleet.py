@@ -33,7 +33,6 @@ on the mesh, carried forward by its broadcast velocity to the frame's time.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
 import math
 import select
@@ -48,28 +47,23 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from behaviors.registry import behavior_class
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.supervisor import behavior_params
 from firmware_bridge.tlog import TlogWriter
 from sitl.bodies import BODY_KINDS
 from sitl.fleet import LockstepFleet, build_world, initial_poses, motorboat_params
-from sitl.mesh_security import mesh_log_counters, write_fleet_key
+from sitl.mesh_security import mesh_log_counters
 from sitl.metrics import METRICS
 from sitl.plots import write_figures
+from sitl.process_events import ProcessEvents, behavior_parameters  # noqa: F401 - re-exported
+from sitl.process_lifecycle import AUTONOMY_COMMAND, ProcessFleetError, ProcessLifecycle
 from sitl.process_supervision import (
     ForkServer,
     Process,
     StopReport,
-    SupervisionError,
-    memory_summary,
-    start_exec,
-    stop_all,
 )
 from sitl.radio_relay import DEFAULT_MESH_PORT, RadioRelay
 from sitl.recorder import Frame, Recorder
 from sitl.runner import estimation_errors, write_atomically
-from sitl.scenario import BehaviorChoice, Event, Scenario, ScenarioError, scenario_to_toml
+from sitl.scenario import BehaviorChoice, Scenario, scenario_to_toml
 from sitl.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicle_server import DEFAULT_BASE_PORT, VehicleServer
 from sitl.vessel_logs import gcs_counters
@@ -78,14 +72,8 @@ from sitl.world import FloatArray
 DEFAULT_GCS_PORT = 14600  # where the autonomy processes' GCS links point (bob_autonomy.mission.MissionClient)
 MAX_STEP_S = 0.1  # the physics steps at most this long, so the sensors keep their rates (GPS 5 Hz, IMU 10 Hz)
 LATE_FRACTION = 0.5  # a step that starts more than this fraction of a wall step after its due time is late
-AUTONOMY_COMMAND = (sys.executable, "-m", "bob_autonomy.cli")  # `bob-autonomy`, with this interpreter
 
 # The BoB rule's parameters that MAVLink parameters carry (bob_autonomy.supervisor.behavior_params).
-BOB_RULE_CARRIED = ("p0", "H", "speed_scale", "max_speed", "goal_radius_m", "leader_id", "goal")
-
-
-class ProcessFleetError(RuntimeError):
-    """The process fleet could not run (a port taken, a vessel that never armed); the message says which."""
 
 
 @dataclass(frozen=True)
@@ -169,36 +157,7 @@ class ProcessRunResult:
     metrics: dict = field(default_factory=dict)
 
 
-def behavior_parameters(base: BehaviorChoice, new: BehaviorChoice, frame: LocalFrame) -> dict[str, float]:
-    """The MAVLink parameters (BOB_*) that make vessels configured with `base` run `new` (set-behavior events).
-
-    A vessel builds its behaviour from the parameters over its configured choice
-    (`bob_autonomy.supervisor`): the parameters carry the behaviour's index and, for the BoB rule, p0, H,
-    the speeds, the goal radius, the goal and the leader; every other parameter of the behaviour stays the
-    configured one. So the parameters carried get their values from `new` (the behaviour's defaults where
-    `new` leaves them out, as a lockstep run would), and `new` must agree with `base` on all the rest.
-    Raises ScenarioError naming what no parameter carries.
-    """
-    carried = BOB_RULE_CARRIED if new.behavior == "bob-rule" else ()
-    if (base.avoid_obstacles, base.avoid_params) != (new.avoid_obstacles, new.avoid_params):
-        raise ScenarioError("set-behavior: obstacle avoidance cannot be changed over MAVLink")
-    kept = {k: v for k, v in base.params.items() if k not in carried} if base.behavior == new.behavior else {}
-    wanted = {k: v for k, v in new.params.items() if k not in carried}
-    if kept != wanted:
-        names = sorted(k for k in set(kept) | set(wanted) if kept.get(k) != wanted.get(k))
-        raise ScenarioError(
-            f"set-behavior to {new.behavior!r}: parameter(s) {names} have no MAVLink parameter and differ from "
-            "what the vessels were started with"
-        )
-    defaults = {f.name: f.default for f in dataclasses.fields(behavior_class(new.behavior))}
-    params = {**new.params, **{k: new.params.get(k, defaults.get(k)) for k in carried}}
-    try:
-        return behavior_params(new.model_copy(update={"params": params}), frame)
-    except ValueError as error:
-        raise ScenarioError(f"set-behavior: {error}") from None
-
-
-class ProcessFleet:
+class ProcessFleet(ProcessLifecycle, ProcessEvents):
     """The world of a process fleet; see the module docstring. Offers what the metrics and figures read:
     n, scenario, world, bodies, events_log, medium, group_of, group_names, behavior_names(), light_seen(), t."""
 
@@ -290,145 +249,6 @@ class ProcessFleet:
                 position[agent] = (p.x + p.vx * age, p.y + p.vy * age)
                 heading[agent] = p.heading
         return position, heading
-
-    # -- starting ------------------------------------------------------------------------------------------
-
-    def start(self) -> None:
-        """Bind the vehicles, the relay (and the GCS), start the autonomy processes."""
-        o, s = self.options, self.scenario
-        if any(e.action == "set-behavior" for e in s.events) and o.external_gcs:
-            raise ScenarioError(
-                f"{s.name}: its set-behavior events are sent by the fleet's own ground station (MAVLink parameters "
-                "on --gcs-port); with --external-gcs your mission script owns that port: remove the events "
-                "(the script can send them) or drop --external-gcs"
-            )
-        self.needs_gcs = any(e.action == "set-behavior" for e in s.events)
-        if s.network.security.faults:
-            raise ScenarioError(f"{s.name}: [network.security] faults are simulated by lockstep runs only")
-        self.mesh_key_file = write_fleet_key(s, self.out)  # every vessel gets --mesh-key when the fleet has a key
-        self._check_events()
-        names = {v: k for k, v in BODY_KINDS.items()}
-        kinds = [names[int(k)] for k in self.bodies.kind]
-        full = {"buoy": self.bodies.buoy_params.max_thrust_n, "ebot": self.bodies.max_wheel_speed_mps, "motorboat": 1.0}
-        limits = [full[k] for k in kinds]
-        # A motorboat's autopilot says how fast it goes and how tight it turns (ArduPilot's TURN_RADIUS: 0..10 m).
-        boats = iter(self.bodies.motorboat_params)
-        own: list[dict[str, float] | None] = []
-        for kind in kinds:
-            boat = next(boats) if kind == "motorboat" else None
-            mine = {"SPEED_MAX": boat.top_speed_mps, "TURN_RADIUS": min(boat.turning_radius_m, 10.0)} if boat else None
-            own.append(mine)
-        self.tlog = TlogWriter(self.out / "vehicles.tlog")
-        try:
-            self.server = VehicleServer(
-                kinds,
-                limits,
-                own_params=own,
-                host=o.host,
-                base_port=o.base_port,
-                metres_per_tick=self.bodies.metres_per_tick,
-                failsafe_s=o.failsafe_s,
-                tlog=self.tlog,
-            )
-            net = s.network
-            self.medium = RadioRelay(
-                self.n,
-                lambda: self.bodies.position,
-                lambda: self.bodies.active,
-                channel=net.channel(),
-                range_m=net.range_m,
-                broadcast_period_s=net.broadcast_period_s,
-                rng=np.random.default_rng([s.seed, 1]),
-                clock=self._sim_now,
-                host=o.host,
-                port=o.mesh_port,
-                memory_fields=self.memory_fields,
-                intruders=net.security.intruders,
-            )
-        except OSError as error:
-            raise ProcessFleetError(str(error)) from error
-        if self.needs_gcs:  # a ground station only when the scenario's events need one (see _launch)
-            from bob_autonomy.mission import MissionClient
-
-            try:
-                self.mission = MissionClient(f"udpin:{o.host}:{o.gcs_port}")
-            except OSError as error:
-                raise ProcessFleetError(f"{error}; choose another --gcs-port") from error
-        if o.fork_server and tuple(o.autonomy) == AUTONOMY_COMMAND:
-            log = open(self.out / "fork-server.out", "wb")  # noqa: SIM115 - closed in stop_processes()
-            self._logs.append(log)
-            try:
-                self.forks = ForkServer(o.autonomy, log)
-            except SupervisionError as error:
-                raise ProcessFleetError(str(error)) from error
-        for i in range(self.n):
-            self._launch(i, kinds[i])
-
-    def _check_events(self) -> None:
-        """Every set-behavior event must be expressible as MAVLink parameters (checked before anything starts)."""
-        for event in self.scenario.events:
-            if event.action != "set-behavior":
-                continue
-            groups = [event.group] if event.group else self.group_names
-            for g in groups:
-                behavior_parameters(self.choices[self.group_names.index(g)], event.choice, self.frame)
-
-    def _launch(self, i: int, kind: str) -> None:
-        o, s = self.options, self.scenario
-        assert self.server is not None
-        choice = self.choices[self.group_of[i]]
-        group = s.groups[self.group_of[i]]
-        command = [
-            *o.autonomy,
-            "run",
-            "--vehicle", f"udpout:{o.host}:{self.server.ports[i]}",
-            "--system-id", str(i + 1),
-            "--kind", kind,
-            "--mesh", f"udpout:{o.host}:{o.mesh_port}",
-            "--behavior-json", json.dumps(choice.model_dump()),
-            "--origin", f"{s.origin.lat_deg!r},{s.origin.lon_deg!r}",
-            "--time-scale", repr(float(o.speed)),
-            "--dt", repr(float(self.dt)),
-            "--estimator", s.vessel.estimator,
-            "--controller", s.vessel.controller,
-            "--memory-fields", json.dumps(self.memory_fields),
-            "--log-file", str(self.out / f"vessel-{i + 1:02d}.log"),
-        ]  # fmt: skip
-        if kind == "ebot":
-            x, y = self.start_position[i]
-            command += ["--start-x", repr(float(x)), "--start-y", repr(float(y))]
-            command += ["--start-heading", repr(float(self.start_heading[i]))]
-        if group.thrust_fraction != 1.0:
-            command += ["--max-thrust-fraction", repr(float(group.thrust_fraction))]
-        command += ["--broadcast-period", repr(float(s.network.broadcast_period_s))]
-        command += ["--neighbor-expiry", repr(float(s.network.expiry_s))]
-        if self.needs_gcs or o.external_gcs:
-            # Each vessel routes all its vehicle's telemetry to its ground station (mavlink-router's job): where
-            # nobody listens that was a third of a vessel's CPU and the fleet's MissionClient decoding it all.
-            command += ["--gcs", f"udpout:{o.host}:{o.gcs_port}"]
-        if self.mesh_key_file is not None:
-            command += ["--mesh-key", str(self.mesh_key_file)]
-        output = self.out / f"vessel-{i + 1:02d}.out"
-        try:
-            if self.forks is not None:
-                process: Process = self.forks.spawn(command[len(o.autonomy) :], output, o.vessel_nice)
-            else:
-                out = open(output, "wb")  # noqa: SIM115 - closed in stop_processes()
-                self._logs.append(out)
-                process = start_exec(command, out, o.vessel_nice)
-        except (OSError, SupervisionError) as error:
-            raise ProcessFleetError(f"cannot start the autonomy of vessel {i + 1}: {error}") from error
-        self.processes.append(process)
-        self.exit_codes.append(None)
-
-    def _log_tail(self, i: int, lines: int = 15) -> str:
-        text = []
-        for name in (f"vessel-{i + 1:02d}.out", f"vessel-{i + 1:02d}.log"):
-            path = self.out / name
-            if path.exists():
-                tail = path.read_text(errors="replace").splitlines()[-lines:]
-                text.append(f"--- {name} ---\n" + ("\n".join(tail) if tail else "(empty)"))
-        return "\n".join(text)
 
     # -- time ----------------------------------------------------------------------------------------------
 
@@ -585,82 +405,6 @@ class ProcessFleet:
             current=b.current[active].copy(),
             estimate=np.column_stack((position[active], heading[active])),
         )
-
-    def _apply_events(self) -> None:
-        """Scheduled events due now: `remove` stops the vehicle for good; `set-behavior` goes to the vessels as
-        MAVLink parameters (in the background: the physics does not wait for the answers)."""
-        while self.pending and self.pending[0].t_s <= self.t + 1e-9:
-            event = self.pending.pop(0)
-            agents = LockstepFleet.event_agents(self, event)  # same selection (and draws) as the lockstep fleet
-            if event.action == "remove":
-                self.bodies.stop(agents)
-            else:
-                self._set_behavior(event, agents)
-            self.events_log.append({"t_s": round(self.t, 6), "action": event.action, "agents": agents.tolist()})
-
-    def _set_behavior(self, event: Event, agents: NDArray[np.intp]) -> None:
-        """Send the new behaviour's parameters to the vessels of `agents` (grouped by the choice they were
-        started with); the answers are awaited in a thread, and how long the vessels took (simulated s from the
-        event until every one had echoed every parameter) goes into metrics.json `event_delays_s`."""
-        assert self.mission is not None and event.choice is not None
-        work = []
-        for group in sorted({int(self.group_of[a]) for a in agents}):
-            vessels = [int(a) + 1 for a in agents if self.group_of[a] == group]
-            work.append((vessels, behavior_parameters(self.choices[group], event.choice, self.frame)))
-        self.choices.append(event.choice)
-        self.names.append(event.choice.build().name)
-        self.assignment[agents] = len(self.choices) - 1
-        mission, t_event = self.mission, self.t
-
-        def send() -> None:
-            try:
-                for vessels, params in work:
-                    mission.set_params(params, vessels)
-                self.event_delays_s.append(round(self.t - t_event, 3))
-            except Exception as error:  # reported in metrics.json: the run goes on
-                self.event_errors.append(f"t={event.t_s} s: {error}")
-
-        thread = threading.Thread(target=send, name=f"set-behavior-{event.t_s}", daemon=True)
-        thread.start()
-        self._event_threads.append(thread)
-
-    # -- stopping ------------------------------------------------------------------------------------------
-
-    def request_stop(self) -> None:
-        """Ask the run to end at the next step (safe from a signal handler)."""
-        self._stop.set()
-
-    def stop_processes(self) -> None:
-        """Note the processes' memory; SIGTERM to every autonomy process group; serve their last (neutral)
-        commands for up to stop_timeout_s; SIGKILL what is left; reap them all; note how long each took."""
-        self._watch_processes()
-        self.memory = memory_summary(self.processes)
-        wall = time.monotonic() - self._wall0
-        self.fleet_cpu_share = (time.process_time() - self._cpu0) / wall if self._wall0 and wall > 0 else None
-
-        def serve(wait_s: float) -> None:
-            if self.server is not None:
-                self.server.serve(wait_s, self.bodies.t)
-            else:
-                time.sleep(wait_s)
-
-        self.stop_report = stop_all(self.processes, self.options.stop_timeout_s, serve)
-        self.killed = self.stop_report.killed
-        self.exit_codes = [p.returncode for p in self.processes]
-        if self.forks is not None:
-            self.forks.close()
-        for log in self._logs:
-            log.close()
-
-    def close(self) -> None:
-        """Stop the processes, then close every socket and the telemetry log."""
-        try:
-            self.stop_processes()
-        finally:
-            for thing in (self.mission, self.server, self.medium, self.tlog):
-                if thing is not None:
-                    with contextlib.suppress(Exception):
-                        thing.close()
 
     def metrics(self, recorder: Recorder) -> dict:
         """The scenario's metrics (the same functions as a lockstep run) and the process fleet's own figures."""

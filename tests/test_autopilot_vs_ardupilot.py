@@ -27,7 +27,7 @@ pytestmark = [
     pytest.mark.xdist_group("realtime"),
 ]
 GENERIC_ROVER = {"FRAME_CLASS": 1, "FRAME_TYPE": 0, "SERVO1_FUNCTION": 26, "SERVO2_FUNCTION": 0, "SERVO3_FUNCTION": 70,
-                 "SERVO4_FUNCTION": 0, "WENC_TYPE": 0, "WENC2_TYPE": 0}  # fmt: skip
+                 "SERVO4_FUNCTION": 0, "WENC_TYPE": 0, "WENC2_TYPE": 0, "SPEED_MAX": 0.0}  # fmt: skip
 COMMON_STREAMS = ["HEARTBEAT", "SYS_STATUS", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "ATTITUDE", "RAW_IMU",
                   "RC_CHANNELS", "SERVO_OUTPUT_RAW", "VFR_HUD", "SYSTEM_TIME"]  # fmt: skip
 COMMANDS = [  # (command, params): answers compared
