@@ -13,7 +13,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from behaviors.base import MemorySpec
-from sitl.medium import BroadcastMedium, _exceeds
+from sitl.medium import BroadcastMedium
+from sitl.medium_fast import _exceeds
 from sitl.mesh_security import FaultSpec, MediumSecurity, MeshSecuritySpec, PlausibilitySpec
 from sitl.neighbour_pairs import NeighbourPairs
 
