@@ -21,12 +21,12 @@ from contextlib import contextmanager
 
 from bob_autonomy.pipeline import BuoyPipeline
 from bob_autonomy.vehicle_link import VehicleLink
-from sitl.fleet import LockstepFleet
-from sitl.mavlink_vehicle import SimulatedVehicle
-from sitl.medium import BroadcastMedium
-from sitl.scenario import load_scenario
-from sitl.vehicle_physics import VehiclePhysics
-from sitl.vehicle_transport import MavlinkTransport
+from sitl.experiments.scenario import load_scenario
+from sitl.fleets.fleet import LockstepFleet
+from sitl.radio.medium import BroadcastMedium
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.vehicle_physics import VehiclePhysics
+from sitl.vehicles.vehicle_transport import MavlinkTransport
 
 
 def realtime_factor(fidelity: str, simulated_s: float) -> tuple[float, float]:

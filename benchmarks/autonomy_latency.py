@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl.process_fleet import ProcessOptions, run_processes_to_directory
-from sitl.scenario import validate_scenario
+from sitl.experiments.scenario import validate_scenario
+from sitl.fleets.process_fleet import ProcessOptions, run_processes_to_directory
 
 
 def scenario(vessels: int, duration_s: float):

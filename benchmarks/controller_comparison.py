@@ -16,8 +16,8 @@ import json
 
 import numpy as np
 
-from sitl.fleet import LockstepFleet
-from sitl.scenario import validate_scenario
+from sitl.experiments.scenario import validate_scenario
+from sitl.fleets.fleet import LockstepFleet
 
 
 def survey(controller: str, duration_s: float) -> dict:

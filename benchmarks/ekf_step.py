@@ -11,7 +11,7 @@ position fix.
 
 A fleet (milliseconds per simulated step): --buoys buoys (45, the paper's
 field tests) holding station against thrust that wanders, simulated by
-sitl.dynamics with the default sitl.sensors suite (GPS 5 Hz with 0.1 s latency,
+sitl.vehicles.dynamics with the default sitl.vehicles.sensors suite (GPS 5 Hz with 0.1 s latency,
 so every fix arrives after the IMU reading of its step and is fused by replay;
 compass 10 Hz; IMU 50 Hz, i.e. one reading per step when dt > 0.02 s). The
 sensor stream is recorded first; then, per step, the bank gets exactly the calls
@@ -38,8 +38,8 @@ import numpy as np
 
 from bob_autonomy.ekf import BuoyEkf, BuoyEkfBank, EbotEkf
 from bob_autonomy.geodesy import LocalFrame
-from sitl.dynamics import BuoyDynamics, BuoyParams
-from sitl.sensors import SensorSuite
+from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
+from sitl.vehicles.sensors import SensorSuite
 
 
 def timed(call, *args) -> float:

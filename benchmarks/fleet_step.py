@@ -28,9 +28,9 @@ import resource
 import sys
 import time
 
-from sitl.adapters import AgentFleet
-from sitl.fleet import LockstepFleet
-from sitl.scenario import Scenario, validate_scenario
+from sitl.experiments.scenario import Scenario, validate_scenario
+from sitl.fleets.adapters import AgentFleet
+from sitl.fleets.fleet import LockstepFleet
 
 SPACING_M = 10.0  # one agent per SPACING_M^2 of water
 NEIGHBOURS = 10

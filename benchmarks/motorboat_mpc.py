@@ -1,7 +1,7 @@
 """Cost of one motorboat MPC call beside the buoy MPC's, both in closed loop with the SITL's truth dynamics.
 
-Both controllers drive their simulated vessel (`sitl.motorboat.MotorboatDynamics`, 2 m/s top speed and 3 m
-turning radius; `sitl.dynamics.BuoyDynamics`) for --steps control steps of 0.5 s over the same seeded
+Both controllers drive their simulated vessel (`sitl.vehicles.motorboat.MotorboatDynamics`, 2 m/s top speed and 3 m
+turning radius; `sitl.vehicles.dynamics.BuoyDynamics`) for --steps control steps of 0.5 s over the same seeded
 sequence of random desired velocities (a new one every 10-30 s, up to 0.8 m/s, in any direction: the boat
 must turn around for many of them) and currents that change every 60 s, the drift known to the controller.
 Timed: the whole `solve()` call from Python (wall time median and p99, and the thread's CPU time, which tells
@@ -24,8 +24,8 @@ import numpy as np
 
 from bob_autonomy.motorboat_control import MotorboatModel, MotorboatMpc
 from bob_autonomy.mpc import BuoyMpc
-from sitl.dynamics import BuoyDynamics, BuoyParams
-from sitl.motorboat import MotorboatDynamics, params_for
+from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
+from sitl.vehicles.motorboat import MotorboatDynamics, params_for
 
 DT_S = 0.5
 

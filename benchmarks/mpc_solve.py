@@ -1,6 +1,6 @@
 """Cost of one MPC call from Python, and the eBot MPC's linear vs nonlinear forms.
 
-Buoy: `BuoyMpc` drives the SITL's truth dynamics (`sitl.dynamics.BuoyDynamics`,
+Buoy: `BuoyMpc` drives the SITL's truth dynamics (`sitl.vehicles.dynamics.BuoyDynamics`,
 with current, wind and its drift, and the nozzle's slew limit) for --steps
 control steps of 0.5 s over a seeded sequence of random desired velocities
 (a new one every 10-30 s, up to 0.8 m/s), drifts that change every 60 s, and
@@ -38,7 +38,7 @@ import numpy as np
 
 from bob_autonomy.mpc import QP_PLUGINS, BuoyMpc, DiffDriveMpc
 from bob_autonomy.velocity_control import BuoyVelocityController, DiffDriveController
-from sitl.dynamics import BuoyDynamics, BuoyParams
+from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
 
 DT_S = 0.5
 EBOT_DT_S = 0.1

@@ -41,8 +41,8 @@ import threading
 import time
 from pathlib import Path
 
-from sitl.process_fleet import ProcessOptions, run_processes_to_directory
-from sitl.scenario import load_scenario
+from sitl.experiments.scenario import load_scenario
+from sitl.fleets.process_fleet import ProcessOptions, run_processes_to_directory
 
 STOPPED = re.compile(r"stopped cleanly: (\{.*\})")
 

@@ -1,6 +1,6 @@
 """Experiment 7: the radio channel's delivery against distance and density, beside Table 1 of the paper.
 
-Measures the table with `sitl.radio.measure_delivery_table` (fixed seed), prints
+Measures the table with `sitl.radio.channel.measure_delivery_table` (fixed seed), prints
 it beside Table 1 with the difference in percentage points, then one JSON line
 with everything, then how many (sender, listener) pair-deliveries per second
 `RadioChannel.deliver` evaluates for 1e6 pairs.
@@ -23,7 +23,7 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-from sitl.radio import TABLE_1, RadioChannel, measure_delivery_table, table_pairs
+from sitl.radio.channel import TABLE_1, RadioChannel, measure_delivery_table, table_pairs
 
 BIN_HALFWIDTH_M = 5.0
 FITTED = ("collision_probability", "median_range_m", "shadowing_db", "interference_to_noise")

@@ -16,7 +16,7 @@ on an open mesh, can claim a position its vehicle cannot be at. A neighbour's st
 a member whose estimate really jumped (a filter reset) is refused until its old entry expires from the
 neighbour table, after which its next state is accepted afresh. The same function serves the neighbour
 table of one vessel (`bob_autonomy.neighbors.NeighborTable`, one row) and the lockstep simulator's medium
-(`sitl.medium`, every delivery of a broadcast round at once).
+(`sitl.radio.medium`, every delivery of a broadcast round at once).
 """
 
 from __future__ import annotations

@@ -459,7 +459,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             self.tlog.close()
         self.stats.gcs = self.gcs.log_counters()
         self.stats.mpc_fallbacks = sum(getattr(m, "fallbacks", 0) for m in getattr(self.pipeline, "mpcs", ()))
-        # One JSON line that process fleets read back (sitl.vessel_logs) for metrics.json.
+        # One JSON line that process fleets read back (sitl.fleets.vessel_logs) for metrics.json.
         logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))
         if isinstance(self.network, ThrottledMesh):  # what the mesh refused, and why (docs/mesh.md)
             mesh = {**self.network.inner.counters(), "implausible": self.agent.neighbors.counters()}

@@ -11,8 +11,8 @@ import json
 import sys
 from pathlib import Path
 
-from sitl.runner import run_to_directory
-from sitl.scenario import validate_scenario
+from sitl.experiments.runner import run_to_directory
+from sitl.experiments.scenario import validate_scenario
 
 ROOM = [[0.0, 0.0], [10.0, 0.0], [10.0, 8.0], [0.0, 8.0]]
 START = {"box": {"min": [4.0, 3.0], "max": [6.0, 5.0]}, "min_separation_m": 0.3}

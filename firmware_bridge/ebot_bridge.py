@@ -43,7 +43,7 @@ from firmware_bridge.links import LinkError, open_link
 __all__ = ["EBOT_SONAR_ANGLES_DEG", "BridgeCounters", "ByteLink", "EbotMavlinkBridge", "main"]
 
 # Sonar axes, degrees counter-clockwise from forward, in the order `2S` reports them (the simulator's layout,
-# sitl.bodies.EBOT_SONAR_ANGLES_RAD): front, front-left, rear-left, rear, rear-right, front-right.
+# sitl.vehicles.bodies.EBOT_SONAR_ANGLES_RAD): front, front-left, rear-left, rear, rear-right, front-right.
 EBOT_SONAR_ANGLES_DEG = (0.0, 60.0, 120.0, 180.0, -120.0, -60.0)
 SONAR_FOV_RAD = math.radians(60.0)
 INT16_MAX = 32767

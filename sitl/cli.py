@@ -5,7 +5,7 @@ criterion passed at 9 of 10 seeds), 1 when one failed, 2 for a bad scenario, opt
 directory or Dask cluster (one message naming the file or option and the key), 130 when a run,
 sweep or reproduction is interrupted (Ctrl-C or SIGTERM; a run writes nothing, a sweep or a
 reproduction keeps its finished runs for --resume).
-Runs larger than `sitl.budget`'s limits are refused before they start unless
+Runs larger than `sitl.fleets.budget`'s limits are refused before they start unless
 `--force` is given.
 """
 
@@ -20,11 +20,11 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-from sitl.budget import MAX_AGENT_STEPS, MAX_AGENTS, MAX_TRAJECTORY_ROWS, check_run_size
-from sitl.distributed import ClusterError
-from sitl.runner import run_to_directory
-from sitl.scenario import ScenarioError, load_scenario, packaged_scenarios
-from sitl.sweep import parse_param, partial_path, read_partial, run_sweep
+from sitl.experiments.distributed import ClusterError
+from sitl.experiments.runner import run_to_directory
+from sitl.experiments.scenario import ScenarioError, load_scenario, packaged_scenarios
+from sitl.experiments.sweep import parse_param, partial_path, read_partial, run_sweep
+from sitl.fleets.budget import MAX_AGENT_STEPS, MAX_AGENTS, MAX_TRAJECTORY_ROWS, check_run_size
 
 FORCE_HELP = (
     f"run even beyond the size limits (at most {MAX_AGENTS:,} agents, {MAX_AGENT_STEPS['kinematic']:,.0f} "
@@ -205,7 +205,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
         return 130
     if args.animate:
-        from sitl.animate import write_animation
+        from sitl.experiments.animate import write_animation
 
         try:
             with _sigterm_interrupts():
@@ -223,7 +223,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _fleet(args: argparse.Namespace) -> int:
-    from sitl.process_fleet import ProcessFleetError, ProcessOptions, run_processes_to_directory
+    from sitl.fleets.process_fleet import ProcessFleetError, ProcessOptions, run_processes_to_directory
 
     if not args.processes:
         print("bob-sitl: fleet needs --processes (for a fleet in one process use `bob-sitl run`)", file=sys.stderr)
@@ -292,7 +292,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from sitl.reproduce import PASS_RATE, reproduce, reproduced
+    from sitl.experiments.reproduce import PASS_RATE, reproduce, reproduced
 
     if args.seeds < 1:
         return _fail(f"--seeds must be at least 1, got {args.seeds}")

@@ -7,7 +7,7 @@ import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 ORIGIN = (1.3405, 103.9560)
 m = mavlink

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from test_process_fleet import aggregation_scenario, free_ports
 
-from sitl.scenario import scenario_to_toml, validate_scenario
+from sitl.experiments.scenario import scenario_to_toml, validate_scenario
 
 VESSELS = 2
 

@@ -12,9 +12,9 @@ from numpy.testing import assert_allclose
 
 from behaviors.base import Behavior, MemorySpec, Senses, View, Wish
 from bob_autonomy import Agent, AgentState, ManualClock, NeighborTable, Pose, WallClock
-from sitl.adapters import AgentFleet
-from sitl.fleet import LockstepFleet
-from sitl.scenario import Scenario, load_scenario, validate_scenario
+from sitl.experiments.scenario import Scenario, load_scenario, validate_scenario
+from sitl.fleets.adapters import AgentFleet
+from sitl.fleets.fleet import LockstepFleet
 
 
 def state(agent_id: int, t: float, x: float = 0.0, y: float = 0.0, **memory: float) -> AgentState:

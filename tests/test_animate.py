@@ -10,10 +10,10 @@ import pytest
 from matplotlib import animation
 from PIL import Image
 
-from sitl.animate import animation_format, write_animation
 from sitl.cli import main
-from sitl.runner import simulate
-from sitl.scenario import load_scenario
+from sitl.experiments.animate import animation_format, write_animation
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import load_scenario
 
 
 def frames_of(path: Path) -> list[np.ndarray]:

@@ -1,5 +1,5 @@
 """Arming, modes and failsafes of the simulated autopilot as ArduPilot Rover does them (item 5;
-sitl/autopilot_safety.py has the source files), on real frames read back by pymavlink."""
+sitl/vehicles/autopilot_safety.py has the source files), on real frames read back by pymavlink."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from autopilot_helpers import Gcs, acks, of_type, parse, run, texts
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 m = mavlink
 ARM, MODE = m.MAV_CMD_COMPONENT_ARM_DISARM, m.MAV_CMD_DO_SET_MODE
@@ -166,8 +166,15 @@ def test_position_modes_need_a_fix_when_armed() -> None:
     assert _mode(v, LOITER, 1.0) == m.MAV_RESULT_ACCEPTED
 
 
-@pytest.mark.parametrize(("mode", "text"), [(2, "No such mode 2"), (99, "No such mode 99"),
-                                            (10, "Flight mode change failed"), (11, "Flight mode change failed")])
+@pytest.mark.parametrize(
+    ("mode", "text"),
+    [
+        (2, "No such mode 2"),
+        (99, "No such mode 99"),
+        (10, "Flight mode change failed"),
+        (11, "Flight mode change failed"),
+    ],
+)
 def test_unknown_and_unsimulated_modes(mode: int, text: str) -> None:
     v = SimulatedVehicle(1, "buoy", 45.0)
     assert _mode(v, mode, 0.0) == m.MAV_RESULT_FAILED and v.mode == MANUAL

@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.mavlink_vehicle import SimulatedVehicle
-from sitl.vehicle_server import VehicleServer
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.vehicle_server import VehicleServer
 
 m = mavlink
 BAD_FLOATS = [math.nan, math.inf, -math.inf, 3.0e38, -3.0e38]

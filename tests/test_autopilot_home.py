@@ -10,7 +10,7 @@ import pytest
 from autopilot_helpers import ORIGIN, Gcs, acks, of_type, parse, run, texts
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 m = mavlink
 

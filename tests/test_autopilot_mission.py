@@ -9,7 +9,7 @@ import pytest
 from autopilot_helpers import Gcs, of_type, parse, run, texts
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 m = mavlink
 HOME = (13405000, 1039560000)

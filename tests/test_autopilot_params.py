@@ -9,15 +9,15 @@ import pytest
 from autopilot_helpers import Gcs, of_type, parse, texts
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.autopilot_params import stored_value
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.autopilot_params import stored_value
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 m = mavlink
 INT8, INT16, INT32, REAL32 = (m.MAV_PARAM_TYPE_INT8, m.MAV_PARAM_TYPE_INT16, m.MAV_PARAM_TYPE_INT32,
                               m.MAV_PARAM_TYPE_REAL32)  # fmt: skip
 
 # name: (buoy default, eBot default, type) as ArduPilot Rover at 90700977 has them (the source file of each is in
-# sitl/autopilot_params.py), with the frame settings of each simulated kind.
+# sitl/vehicles/autopilot_params.py), with the frame settings of each simulated kind.
 EXPECTED = {
     "FRAME_CLASS": (2, 1, INT8), "FRAME_TYPE": (2, 0, INT8), "INITIAL_MODE": (0, 0, INT8),
     "PILOT_STEER_TYPE": (0, 0, INT8), "CRUISE_SPEED": (2.0, 2.0, REAL32), "CRUISE_THROTTLE": (50, 50, INT8),

@@ -9,8 +9,8 @@ import pytest
 from autopilot_helpers import Gcs, of_type, parse
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.autopilot_rc import scale_angle
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.autopilot_rc import scale_angle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 m = mavlink
 NO_SLEW = {"MOT_SLEWRATE": 0}

@@ -1,4 +1,5 @@
-"""The simulated autopilot's telemetry streams against ArduPilot Rover's rules (sitl/autopilot_streams.py), read
+"""The simulated autopilot's telemetry streams against ArduPilot Rover's rules (sitl/vehicles/autopilot_streams.py),
+read
 back with pymavlink's own parser."""
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ import pytest
 from autopilot_helpers import Gcs, acks, count, of_type, parse, run
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.mavlink_vehicle import CAPABILITIES, FLIGHT_SW_VERSION, SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import CAPABILITIES, FLIGHT_SW_VERSION, SimulatedVehicle
 
 m = mavlink
 GROUP_MESSAGES_AT_1HZ = ["HEARTBEAT", "SYS_STATUS", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "ATTITUDE", "RAW_IMU",
@@ -47,8 +48,12 @@ def test_set_message_interval_speeds_a_message_up_but_never_past_its_sensor() ->
         (m.MAVLINK_MSG_ID_ATTITUDE, -1, m.MAV_RESULT_ACCEPTED, None),
         (m.MAVLINK_MSG_ID_ATTITUDE, 0, m.MAV_RESULT_ACCEPTED, None),
         (m.MAVLINK_MSG_ID_ATTITUDE, -2, m.MAV_RESULT_DENIED, None),
-        (m.MAVLINK_MSG_ID_ATTITUDE, 10_000, m.MAV_RESULT_DENIED,
-         "Requested rate for message ID 30 too fast. Increase SCHED_LOOP_RATE"),
+        (
+            m.MAVLINK_MSG_ID_ATTITUDE,
+            10_000,
+            m.MAV_RESULT_DENIED,
+            "Requested rate for message ID 30 too fast. Increase SCHED_LOOP_RATE",
+        ),
         (m.MAVLINK_MSG_ID_WHEEL_DISTANCE, 100_000, m.MAV_RESULT_DENIED, "No ap_message for mavlink id (9000)"),
         (m.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, 100_000, m.MAV_RESULT_DENIED, "No ap_message for mavlink id (251)"),
         (m.MAVLINK_MSG_ID_SCALED_IMU, 50_000, m.MAV_RESULT_ACCEPTED, None),

@@ -11,7 +11,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.vehicle_server import VehicleServer
+from sitl.vehicles.vehicle_server import VehicleServer
 
 m = mavlink
 

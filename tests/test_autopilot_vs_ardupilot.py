@@ -17,8 +17,8 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.autopilot_params import KIND_FRAMES
-from sitl.vehicle_server import VehicleServer
+from sitl.vehicles.autopilot_params import KIND_FRAMES
+from sitl.vehicles.vehicle_server import VehicleServer
 
 m = mavlink
 SITL = os.environ.get("ARDUPILOT_SITL")
@@ -50,8 +50,17 @@ def _ask(conn, beat) -> dict:
         if msg is not None and msg.get_srcComponent() == 1 and time.monotonic() > end - 5.0:
             counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
     answers: dict = {"rates": {k: round(counts.get(k, 0) / 5.0) for k in COMMON_STREAMS}}
-    names = [*KIND_FRAMES["buoy"], "RC_OVERRIDE_TIME", "MAV_GCS_SYSID", "FS_ACTION", "MAV1_EXTRA1", "RC3_DZ",
-             "PILOT_STEER_TYPE", "INITIAL_MODE", "ARMING_CHECK"]
+    names = [
+        *KIND_FRAMES["buoy"],
+        "RC_OVERRIDE_TIME",
+        "MAV_GCS_SYSID",
+        "FS_ACTION",
+        "MAV1_EXTRA1",
+        "RC3_DZ",
+        "PILOT_STEER_TYPE",
+        "INITIAL_MODE",
+        "ARMING_CHECK",
+    ]
     for name in names:
         conn.mav.param_request_read_send(1, 1, name.encode(), -1)
         msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=2)

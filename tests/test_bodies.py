@@ -1,4 +1,4 @@
-"""KinematicBodies (sitl/bodies.py): speed, acceleration and wheel limits, walls, range finders, light."""
+"""KinematicBodies (sitl/vehicles/bodies.py): speed, acceleration and wheel limits, walls, range finders, light."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from sitl.bodies import (
+from sitl.vehicles.bodies import (
     BUOY,
     EBOT,
     EBOT_LIGHT_ANGLES_RAD,
@@ -16,7 +16,7 @@ from sitl.bodies import (
     SONAR_CONE_OFFSETS_RAD,
     KinematicBodies,
 )
-from sitl.world import World, polygon_segments
+from sitl.world.world import World, polygon_segments
 
 DT = 0.1
 WHEEL_BASE = 0.1  # m, eBot

@@ -1,4 +1,4 @@
-"""Physical bodies (sitl/dynamics.py) against force balances and closed forms worked out here.
+"""Physical bodies (sitl/vehicles/dynamics.py) against force balances and closed forms worked out here.
 
 Expected values never come from the integrator: terminal speeds and drifts are
 roots of the force balance (scipy.optimize.brentq), coasting follows the closed
@@ -15,7 +15,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.optimize import brentq
 
-from sitl.dynamics import (
+from sitl.vehicles.dynamics import (
     BuoyDynamics,
     BuoyParams,
     DiffDriveDynamics,
@@ -23,8 +23,8 @@ from sitl.dynamics import (
     equivalent_drift_mps,
     wrap_angle,
 )
-from sitl.environment import CurrentSpec, Environment, WindSpec
-from sitl.world import World, point_segment_offsets, polygon_segments
+from sitl.world.environment import CurrentSpec, Environment, WindSpec
+from sitl.world.world import World, point_segment_offsets, polygon_segments
 
 DT = 0.1  # s
 # Default buoy parameters, restated by hand: the tests derive everything from these.

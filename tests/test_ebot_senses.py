@@ -14,12 +14,12 @@ from bob_autonomy.vessel import EbotConfig
 from firmware_bridge.decoder import TelemetryDecoder
 from firmware_bridge.readings import LightReading, RangeReading
 from firmware_bridge.telemetry import TelemetryEncoder
-from sitl.bodies import EBOT, EBOT_SONAR_ANGLES_RAD
-from sitl.environment import CurrentSpec, Environment, WindSpec
-from sitl.mavlink_vehicle import SimulatedVehicle, encode_senses
-from sitl.sensors import LightSpec, RangeSpec
-from sitl.vehicle_physics import VehiclePhysics
-from sitl.world import World, polygon_segments
+from sitl.vehicles.bodies import EBOT, EBOT_SONAR_ANGLES_RAD
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle, encode_senses
+from sitl.vehicles.sensors import LightSpec, RangeSpec
+from sitl.vehicles.vehicle_physics import VehiclePhysics
+from sitl.world.environment import CurrentSpec, Environment, WindSpec
+from sitl.world.world import World, polygon_segments
 
 
 def test_the_vessel_knows_the_simulated_sonar_layout() -> None:
@@ -87,8 +87,8 @@ def test_the_ebot_estimator_ignores_range_and_light_readings() -> None:
 
 
 def test_lockstep_ebots_sense_through_mavlink() -> None:
-    from sitl.runner import simulate
-    from sitl.scenario import load_scenario
+    from sitl.experiments.runner import simulate
+    from sitl.experiments.scenario import load_scenario
 
     scenario = load_scenario("perimeter-defense").with_overrides(duration_s=5.0, fidelity="physics", link="mavlink")
     fleet = simulate(scenario).fleet

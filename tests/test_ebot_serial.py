@@ -26,7 +26,7 @@ from firmware_bridge.decoder import WheelDistance as WheelDistanceReading
 from firmware_bridge.ebot_bridge import EbotMavlinkBridge
 from firmware_bridge.ebot_serial import EbotProtocolError, EbotSerial, wheel_command
 from firmware_bridge.links import LinkError, open_link
-from sitl.ebot_serial_sim import EbotSerialSim
+from sitl.vehicles.ebot_serial_sim import EbotSerialSim
 
 pytestmark = [
     pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX"),

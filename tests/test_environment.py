@@ -1,4 +1,4 @@
-"""Wind and current (sitl/environment.py) against values worked out by hand."""
+"""Wind and current (sitl/world/environment.py) against values worked out by hand."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from sitl.environment import CurrentGrid, CurrentSpec, Environment, WindSpec
+from sitl.world.environment import CurrentGrid, CurrentSpec, Environment, WindSpec
 
 
 def env(wind: WindSpec | None = None, current: CurrentSpec | None = None, seed: int = 0) -> Environment:

@@ -6,7 +6,7 @@ law gives the push the hull really feels from water and wind at v,
 (c1 + c2 |d - v|) (d - v) = E(v). For an unpowered buoy that is the velocity over
 ground it settles to; for a buoy holding station, the water velocity whose drag
 alone on a hull at rest equals water and wind together. The truth here is
-computed from the simulator's force balance (sitl.dynamics.equivalent_drift_mps)
+computed from the simulator's force balance (sitl.vehicles.dynamics.equivalent_drift_mps)
 at the true velocity of every logged step, averaged over the last 10 s of the
 run (a station-keeping buoy's velocity jitters, and its drift with it), and
 compared with the estimate after 60 s of steady wind and current: 3 seeds x 4
@@ -23,9 +23,9 @@ import math
 import numpy as np
 import pytest
 
-from sitl.dynamics import BuoyParams, equivalent_drift_mps
-from sitl.runner import RunResult, simulate
-from sitl.scenario import validate_scenario
+from sitl.experiments.runner import RunResult, simulate
+from sitl.experiments.scenario import validate_scenario
+from sitl.vehicles.dynamics import BuoyParams, equivalent_drift_mps
 
 GPS_NOISE_M = 2.0  # per axis, white: raw GPS error RMS = 2 * sqrt(2) = 2.83 m
 WIND_MPS, CURRENT_MPS = 5.0, 0.1

@@ -6,7 +6,7 @@ import importlib.util
 import json
 from pathlib import Path
 
-from sitl.runner import run_to_directory
+from sitl.experiments.runner import run_to_directory
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -1,4 +1,4 @@
-"""The lockstep full stack: vehicles and vessels exchange real MAVLink bytes (sitl.vehicle_transport).
+"""The lockstep full stack: vehicles and vessels exchange real MAVLink bytes (sitl.vehicles.vehicle_transport).
 
 The vessels decode telemetry with firmware_bridge and drive with RC_CHANNELS_OVERRIDE; the result must
 match the direct hand-over of readings up to PWM quantization. (The scenario criteria are checked with the
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.runner import simulate
-from sitl.scenario import load_scenario
-from sitl.sensors import CompassSpec, GpsSpec, ImuSpec
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import load_scenario
+from sitl.vehicles.sensors import CompassSpec, GpsSpec, ImuSpec
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,8 @@ def test_every_byte_went_through_firmware_bridge(two_links: dict) -> None:
     assert counters["vehicle_refused"] == 0 and counters["vehicle_failsafes"] == 0
     # The vessels asked for their streams as bob-autonomy does (the vehicles stream at ArduPilot's 1 Hz defaults
     # until asked). Each sensor message comes with every reading (its rate, capped by the rate asked and by one
-    # reading per step: sitl/sensors.py), over the 2 s pre-roll at 0.1 s steps and the 120 s run (+-2 per buoy).
+    # reading per step: sitl/vehicles/sensors.py), over the 2 s pre-roll at 0.1 s steps and the 120 s run (+-2 per
+    # buoy).
     asked = {"GPS_RAW_INT": 10.0, "ATTITUDE": 20.0, "SCALED_IMU": 25.0}
     sensors = {"GPS_RAW_INT": GpsSpec(), "ATTITUDE": CompassSpec(), "SCALED_IMU": ImuSpec()}
     for name, spec in sensors.items():

@@ -26,8 +26,8 @@ from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import encode_state
 from bob_autonomy.params import ParameterStore
 from bob_autonomy.vessel import Vessel, VesselConfig
-from sitl.radio_relay import RadioRelay
-from sitl.vessel_logs import gcs_counters, stopped_summary
+from sitl.fleets.vessel_logs import gcs_counters, stopped_summary
+from sitl.radio.radio_relay import RadioRelay
 
 pytestmark = pytest.mark.xdist_group("realtime")
 
@@ -183,7 +183,7 @@ def test_the_relay_never_lets_a_packet_re_bind_another_agents_address() -> None:
 def test_a_process_fleet_puts_the_gcs_and_spoof_counters_in_metrics_json(tmp_path: Path) -> None:
     from test_process_fleet import SPEED, aggregation_scenario, free_ports
 
-    from sitl.process_fleet import ProcessOptions, run_processes_to_directory
+    from sitl.fleets.process_fleet import ProcessOptions, run_processes_to_directory
 
     base, (mesh, gcs) = free_ports(2, extra=2)
     options = ProcessOptions(speed=SPEED, base_port=base, mesh_port=mesh, gcs_port=gcs)

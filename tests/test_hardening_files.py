@@ -51,7 +51,7 @@ CORRUPT_PARAMETER_FILES = {
     "Infinity": (b'{"params": {"BOB_GCS_FS_S": Infinity}}', "not finite"),
     "NaN goal": (b'{"goals": [[NaN, 0]]}', "not finite"),
     "infinite fence vertex": (b'{"fence": [[0, 0], [1, -Infinity], [1, 1]]}', "not finite"),
-    "huge-int goal": (b'{"goals": [[1' + b"0" * 400 + b', 0]]}', "pair of finite numbers"),
+    "huge-int goal": (b'{"goals": [[1' + b"0" * 400 + b", 0]]}", "pair of finite numbers"),
     "string for a float": (b'{"params": {"BOB_P0_M": "10"}}', "not a number"),
     "string for an int": (b'{"params": {"BOB_H": "1"}}', "not an integer"),
     "list for a float": (b'{"params": {"BOB_P0_M": [10]}}', "not a number"),

@@ -126,9 +126,7 @@ def _command_cases():
         for k in range(7):
             for value in BAD_FLOATS:
                 unused = (k + 1) not in used
-                accepted = (unused and not math.isinf(value)) or (
-                    (command, k + 1) in NAN_DEFAULT and math.isnan(value)
-                )
+                accepted = (unused and not math.isinf(value)) or ((command, k + 1) in NAN_DEFAULT and math.isnan(value))
                 yield pytest.param(command, k, value, accepted, id=f"{command}-param{k + 1}-{value!r}")
 
 

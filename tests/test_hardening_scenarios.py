@@ -25,12 +25,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import sitl.runner
-import sitl.sweep
-from sitl.budget import MAX_AGENTS, check_run_size, run_size
+import sitl.experiments.runner
+import sitl.experiments.sweep
 from sitl.cli import main
-from sitl.runner import STAGING_MARKER, OutputDirectoryError, write_atomically
-from sitl.scenario import ScenarioError, _toml_table, polygon_problem, validate_scenario
+from sitl.experiments.runner import STAGING_MARKER, OutputDirectoryError, write_atomically
+from sitl.experiments.scenario import ScenarioError, _toml_table, polygon_problem, validate_scenario
+from sitl.fleets.budget import MAX_AGENTS, check_run_size, run_size
 
 BASE: dict[str, Any] = {
     "name": "tiny",
@@ -245,7 +245,7 @@ def test_the_size_limits_are_checked_before_anything_is_allocated(in_tmp: Path, 
     def no_fleet(*args, **kwargs):
         raise AssertionError("the fleet was built")
 
-    monkeypatch.setattr(sitl.runner, "LockstepFleet", no_fleet)
+    monkeypatch.setattr(sitl.experiments.runner, "LockstepFleet", no_fleet)
     path = scenario_file(in_tmp, BASE)
     start = time.perf_counter()
     assert_refused(in_tmp, capsys, ["run", str(path), "--agents", str(10**15)], "at most 200,000")
@@ -277,7 +277,7 @@ def test_a_bad_output_directory_exits_2_before_running(in_tmp: Path, capsys, mon
     (work / "afile").write_text("keep me")
     (work / "precious").mkdir()
     (work / "precious" / "thesis.tex").write_text("keep me")
-    monkeypatch.setattr(sitl.runner, "LockstepFleet", lambda *a: pytest.fail("ran before checking --out"))
+    monkeypatch.setattr(sitl.experiments.runner, "LockstepFleet", lambda *a: pytest.fail("ran before checking --out"))
     path = scenario_file(in_tmp, BASE)
     assert_refused(in_tmp, capsys, ["run", str(path), "--quiet", "--out", out], expected)
     assert (work / "afile").read_text() == "keep me"
@@ -300,7 +300,7 @@ def test_a_read_only_output_directory_exits_2(in_tmp: Path, capsys) -> None:
 
 def test_ctrl_c_during_a_run_leaves_nothing_and_exits_130(in_tmp: Path, capsys, monkeypatch) -> None:
     steps = {"n": 0}
-    real_step = sitl.runner.LockstepFleet.step
+    real_step = sitl.experiments.runner.LockstepFleet.step
 
     def interrupted(self):
         steps["n"] += 1
@@ -308,7 +308,7 @@ def test_ctrl_c_during_a_run_leaves_nothing_and_exits_130(in_tmp: Path, capsys, 
             raise KeyboardInterrupt
         return real_step(self)
 
-    monkeypatch.setattr(sitl.runner.LockstepFleet, "step", interrupted)
+    monkeypatch.setattr(sitl.experiments.runner.LockstepFleet, "step", interrupted)
     path = scenario_file(in_tmp, BASE)
     before = tree(in_tmp)
     assert main(["run", str(path), "--quiet", "--out", "deep/new/run"]) == 130
@@ -326,7 +326,7 @@ def test_a_failed_write_leaves_nothing_and_keeps_the_previous_output(in_tmp: Pat
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(sitl.runner, "write_figures", disk_full)
+    monkeypatch.setattr(sitl.experiments.runner, "write_figures", disk_full)
     assert main(["run", str(path), "--quiet", "--out", "run", "--seed", "3"]) == 2
     assert "cannot write the outputs to run: [Errno 28] No space left on device" in capsys.readouterr().err
     assert tree(in_tmp) == snapshot
@@ -408,7 +408,7 @@ def test_sigterm_during_a_run_leaves_nothing_and_exits_130(in_tmp: Path) -> None
 )
 def test_a_bad_sweep_exits_2_before_the_first_run(in_tmp: Path, capsys, monkeypatch, options, expected) -> None:
     (in_tmp / "work" / "afile").write_text("")
-    monkeypatch.setattr(sitl.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
     path = scenario_file(in_tmp, BASE)
     assert_refused(in_tmp, capsys, ["sweep", str(path), "--quiet", *options], expected)
 
@@ -416,7 +416,7 @@ def test_a_bad_sweep_exits_2_before_the_first_run(in_tmp: Path, capsys, monkeypa
 def test_a_sweep_will_not_replace_a_foreign_directory(in_tmp: Path, capsys, monkeypatch) -> None:
     (in_tmp / "work" / "mine").mkdir()
     (in_tmp / "work" / "mine" / "notes.txt").write_text("precious")
-    monkeypatch.setattr(sitl.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
     path = scenario_file(in_tmp, BASE)
     assert_refused(in_tmp, capsys, ["sweep", str(path), "--agents", "3", "--out", "mine"], "previous run's output")
 

@@ -20,7 +20,7 @@ appears at t = 22 s). These tests pin the two facts that decide it, on the proje
    omega = (3 / pi) * error rad/s every 0.1 s ("too big and the robot oscillates": each cycle is a Bluetooth
    round trip, `2P` then `8w`). The emulation below does exactly that on top of the simulator's medium (which
    broadcasts every 0.1 s, so the slot schedule is carried in the broadcast memory fields) and through the
-   kinematic eBot's turning law (omega = 4 * (wish - heading), sitl.bodies): the wish is heading + (3/pi)/4 *
+   kinematic eBot's turning law (omega = 4 * (wish - heading), sitl.vehicles.bodies): the wish is heading + (3/pi)/4 *
    error. It agrees in 3-5 s and is still about 45 degrees off the leader at t = 40 s (about 60-80 s to
    follow within 5 degrees at physics fidelity).
 """
@@ -38,15 +38,15 @@ from behavior_helpers import make_table, make_view
 from behaviors import registry
 from behaviors.base import Behavior, MemorySpec, View, Wish, heading_vectors, wrap_angle
 from behaviors.heading_consensus import HeadingConsensus
-from sitl.runner import simulate
-from sitl.scenario import validate_scenario
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import validate_scenario
 
 DEG = math.pi / 180.0
 TOLERANCE_DEG = 5.0
 
 
 def spread_deg(headings: np.ndarray) -> float:
-    """Largest deviation (deg) of any heading from the circular mean (as sitl.metrics measures it)."""
+    """Largest deviation (deg) of any heading from the circular mean (as sitl.experiments.metrics measures it)."""
     mean = math.atan2(np.sin(headings).mean(), np.cos(headings).mean())
     return float(np.degrees(np.abs(wrap_angle(headings - mean))).max())
 
@@ -105,7 +105,7 @@ SLOT_PERIOD_S = 1.0  # XBeeExpirationNetwork(..., period=1): one message per rob
 SLOT_S = 0.1  # its window: [slot, slot + 0.1) of each second, slot = 0.1 * robot number
 EXPIRY_S = 1.4  # dropped 1.4 s after the sender made it (sender's clock)
 MARABUNTA_GAIN_PER_S = 3.0 / math.pi  # ebotBody.move_background: omega = gain * heading error
-SIM_TURN_GAIN_PER_S = 4.0  # sitl.bodies: the kinematic eBot turns at omega = 4 * (wish - heading)
+SIM_TURN_GAIN_PER_S = 4.0  # sitl.vehicles.bodies: the kinematic eBot turns at omega = 4 * (wish - heading)
 FIELDS = {name: MemorySpec() for name in ("queued_heading", "queued_t", "sent_heading", "sent_t")}
 
 

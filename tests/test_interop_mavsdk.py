@@ -162,6 +162,7 @@ def one_way_delays(tlog: Path, calls: list) -> dict:
             legs.setdefault(f"vehicle_to_gcs_{request}", []).append(t_end - answered[0])
     return {name: _summary(samples) for name, samples in sorted(legs.items())}
 
+
 def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
     north = math.radians(b[0] - a[0]) * 6_371_000.0
     east = math.radians(b[1] - a[1]) * 6_371_000.0 * math.cos(math.radians(a[0]))
@@ -246,9 +247,7 @@ def test_mavsdk_sees_the_routed_streams_of_both_components(ground: Ground) -> No
         for name in ("SYS_STATUS", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "ATTITUDE"):  # what the autonomy asked for
             assert rates.get((vessel, AUTOPILOT, name), 0) >= 0.5, f"vessel {vessel}: {name} from the autopilot"
         FINDINGS.setdefault("rates_hz", {})[vessel] = {
-            f"{component}:{name}": round(rate, 1)
-            for (v, component, name), rate in sorted(rates.items())
-            if v == vessel
+            f"{component}:{name}": round(rate, 1) for (v, component, name), rate in sorted(rates.items()) if v == vessel
         }
 
 

@@ -13,7 +13,7 @@ from firmware_bridge.commands import Encoder
 from firmware_bridge.decoder import TelemetryDecoder
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
 from firmware_bridge.telemetry import TelemetryEncoder, yaw_from_heading
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 
 def _decode(data: bytes):

@@ -1,4 +1,4 @@
-"""BroadcastMedium (sitl/medium.py): who hears whom, for how long, and the counters."""
+"""BroadcastMedium (sitl/radio/medium.py): who hears whom, for how long, and the counters."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from behaviors.base import MemorySpec
-from sitl.medium import BroadcastMedium
+from sitl.radio.medium import BroadcastMedium
 
 ALL3 = np.ones(3, dtype=bool)
 

@@ -1,4 +1,4 @@
-"""The medium's fast path (no radio channel, no intruders: sitl.neighbour_pairs' Verlet list and what each
+"""The medium's fast path (no radio channel, no intruders: sitl.radio.neighbour_pairs' Verlet list and what each
 listener holds kept per candidate pair) gives exactly what its general path (sorted keys) gives, round by
 round, on random swarms; the Verlet list finds exactly cKDTree.query_pairs' pairs; the squared-length
 shortcut of the plausibility jump test gives np.hypot's verdicts."""
@@ -13,10 +13,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from behaviors.base import MemorySpec
-from sitl.medium import BroadcastMedium
-from sitl.medium_fast import _exceeds
-from sitl.mesh_security import FaultSpec, MediumSecurity, MeshSecuritySpec, PlausibilitySpec
-from sitl.neighbour_pairs import NeighbourPairs
+from sitl.radio.medium import BroadcastMedium
+from sitl.radio.medium_fast import _exceeds
+from sitl.radio.mesh_security import FaultSpec, MediumSecurity, MeshSecuritySpec, PlausibilitySpec
+from sitl.radio.neighbour_pairs import NeighbourPairs
 
 GOAL = {"goal": MemorySpec(shape=(2,))}
 CHECKS = PlausibilitySpec(max_speed_mps=2.0, slack_m=3.0)  # Verlet skin: half the slack, 1.5 m

@@ -1,4 +1,5 @@
-"""The lockstep medium's mesh security (sitl.medium + sitl.mesh_security): intruders, key, plausibility, faults."""
+"""The lockstep medium's mesh security (sitl.radio.medium + sitl.radio.mesh_security): intruders, key, plausibility,
+faults."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ import numpy as np
 import pytest
 
 from behaviors.base import MemorySpec
-from sitl.medium import BroadcastMedium
-from sitl.mesh_security import IntruderSpec, MediumSecurity, MeshSecuritySpec, PlausibilitySpec
+from sitl.radio.medium import BroadcastMedium
+from sitl.radio.mesh_security import IntruderSpec, MediumSecurity, MeshSecuritySpec, PlausibilitySpec
 
 KEY = hashlib.sha256(b"lockstep fleet").digest()
 GOAL = {"goal": MemorySpec(shape=(2,))}
@@ -175,8 +176,8 @@ def test_a_process_fleet_gets_the_lockstep_runs_key_and_reads_what_its_vessels_r
     import json
     import os
 
-    from sitl.mesh_security import medium_security, mesh_log_counters, write_fleet_key
-    from sitl.scenario import load_scenario
+    from sitl.experiments.scenario import load_scenario
+    from sitl.radio.mesh_security import medium_security, mesh_log_counters, write_fleet_key
 
     scenario = load_scenario("leader-follower-intruder")
     path = write_fleet_key(scenario, tmp_path)

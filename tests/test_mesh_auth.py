@@ -266,13 +266,13 @@ def test_a_keyless_mesh_reads_signed_and_unsigned_packets_as_today() -> None:
         relay.close()
 
 
-# -- an intruder on the process fleet's simulated radio (sitl.radio_relay) -------------------------------------
+# -- an intruder on the process fleet's simulated radio (sitl.radio.radio_relay) -------------------------------------
 
 
 @pytest.mark.xdist_group("realtime")
 def test_the_relay_hosts_an_intruder_whose_packets_keyed_members_refuse_and_open_members_take() -> None:
-    from sitl.mesh_security import IntruderSpec
-    from sitl.radio_relay import RadioRelay
+    from sitl.radio.mesh_security import IntruderSpec
+    from sitl.radio.radio_relay import RadioRelay
 
     positions = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
     now = [0.0]

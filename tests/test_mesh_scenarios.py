@@ -11,9 +11,9 @@ from bob_autonomy.interfaces import AgentState, Pose
 from bob_autonomy.mesh import MAX_PACKET_BYTES, encode_state, packet_bytes
 from bob_autonomy.mesh_auth import MeshSigner
 from sitl.cli import main
-from sitl.fleet import LockstepFleet
-from sitl.runner import simulate
-from sitl.scenario import load_scenario, packaged_scenarios, validate_scenario
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import load_scenario, packaged_scenarios, validate_scenario
+from sitl.fleets.fleet import LockstepFleet
 
 # On-air bytes of one state packet, unsigned and signed (docs/mesh.md lists the same).
 PACKET_BYTES = {

@@ -18,7 +18,7 @@ import pytest
 from test_examples import load_example
 from test_process_fleet import aggregation_scenario, free_ports
 
-from sitl.scenario import scenario_to_toml, validate_scenario
+from sitl.experiments.scenario import scenario_to_toml, validate_scenario
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")

@@ -1,4 +1,5 @@
-"""The motorboat controllers (bob_autonomy.motorboat_control) against the simulated motorboat (sitl.motorboat)."""
+"""The motorboat controllers (bob_autonomy.motorboat_control) against the simulated motorboat
+(sitl.vehicles.motorboat)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from bob_autonomy.motorboat_control import (
     MotorboatModel,
     MotorboatMpc,
 )
-from sitl.motorboat import MotorboatDynamics, params_for
+from sitl.vehicles.motorboat import MotorboatDynamics, params_for
 
 TOP_SPEED, RADIUS = 2.0, 3.0
 MODEL = MotorboatModel.for_top_speed(TOP_SPEED, RADIUS)

@@ -1,4 +1,5 @@
-"""The simulated motorboat (sitl.motorboat): top speed and turning radius as given, no sideways thrust, drift."""
+"""The simulated motorboat (sitl.vehicles.motorboat): top speed and turning radius as given, no sideways thrust,
+drift."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sitl.motorboat import MotorboatDynamics, MotorboatParams, params_for
+from sitl.vehicles.motorboat import MotorboatDynamics, MotorboatParams, params_for
 
 
 def _boat(params: MotorboatParams, n: int = 1, heading: float = 0.0) -> MotorboatDynamics:

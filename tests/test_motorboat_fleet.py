@@ -8,11 +8,11 @@ import logging
 import numpy as np
 import pytest
 
-from sitl.bodies import MOTORBOAT, KinematicBodies
-from sitl.fleet import LockstepFleet
-from sitl.runner import simulate
-from sitl.scenario import validate_scenario
-from sitl.world import World
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import validate_scenario
+from sitl.fleets.fleet import LockstepFleet
+from sitl.vehicles.bodies import MOTORBOAT, KinematicBodies
+from sitl.world.world import World
 
 
 def _scenario(**overrides) -> dict:

@@ -1,4 +1,5 @@
-"""Metrics for boats that cannot stop in place (sitl.station_metrics, `average_window_s` of the aggregation metric):
+"""Metrics for boats that cannot stop in place (sitl.experiments.station_metrics, `average_window_s` of the
+aggregation metric):
 a boat circling its spot counts at the centre of its circle, and how far it wanders is reported."""
 
 from __future__ import annotations
@@ -6,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.recorder import Frame, Recorder
-from sitl.station_metrics import time_averaged, wander_m
-from sitl.swarm_metrics import aggregation_metrics, hull_area_m2
+from sitl.experiments.recorder import Frame, Recorder
+from sitl.experiments.station_metrics import time_averaged, wander_m
+from sitl.experiments.swarm_metrics import aggregation_metrics, hull_area_m2
 
 SPOTS = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 20.0], [0.0, 20.0], [10.0, 10.0]])  # hull 400 m2
 

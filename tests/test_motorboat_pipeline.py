@@ -9,8 +9,8 @@ import pytest
 from bob_autonomy.geodesy import LocalFrame
 from bob_autonomy.motorboat_control import MotorboatModel
 from bob_autonomy.pipeline import BuoyPipeline, MotorboatPipeline
-from sitl.motorboat import MotorboatDynamics, params_for
-from sitl.sensors import SensorSuite
+from sitl.vehicles.motorboat import MotorboatDynamics, params_for
+from sitl.vehicles.sensors import SensorSuite
 
 FRAME = LocalFrame(1.3406, 103.9266)
 

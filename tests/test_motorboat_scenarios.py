@@ -5,7 +5,8 @@ buoys + 20 motorboats; `leader-follower-motorboats` is experiment 5 with 45 moto
 here: its boats arrive with the leader but come closer than the buoys' 1 m, see the scenario's description).
 A motorboat cannot stop
 in place, so the aggregation hull is taken over each vessel's mean position in a trailing 60 s window (the spot
-it holds, sitl.station_metrics) and the wander about that spot is bounded here: about the turning radius (4 m).
+it holds, sitl.experiments.station_metrics) and the wander about that spot is bounded here: about the turning radius
+(4 m).
 Run with the direct vehicle link like tests/test_physics_scenarios.py; the many-seed pass rates come from
 `bob-sitl reproduce aggregation-motorboats aggregation-mixed leader-follower-motorboats --seeds 10`.
 """
@@ -16,11 +17,11 @@ import numpy as np
 import pytest
 from test_process_fleet import free_ports
 
-from sitl.process_fleet import ProcessOptions, run_processes_to_directory
-from sitl.reproduce import select_experiments
-from sitl.runner import simulate
-from sitl.scenario import load_scenario, validate_scenario
-from sitl.swarm_metrics import nearest_neighbor_m
+from sitl.experiments.reproduce import select_experiments
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import load_scenario, validate_scenario
+from sitl.experiments.swarm_metrics import nearest_neighbor_m
+from sitl.fleets.process_fleet import ProcessOptions, run_processes_to_directory
 
 MOTORBOAT_SCENARIOS = ("aggregation-motorboats", "aggregation-mixed", "leader-follower-motorboats")
 TURNING_RADIUS_M = 4.0

@@ -1,4 +1,5 @@
-"""The simulated autopilot of a motorboat (sitl.mavlink_vehicle, kind "motorboat"): ArduPilot's motorboat frame,
+"""The simulated autopilot of a motorboat (sitl.vehicles.mavlink_vehicle, kind "motorboat"): ArduPilot's motorboat
+frame,
 steering + throttle from RC overrides, lateral ignored, and bob-autonomy's motorboat kind on it."""
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.autopilot import BUOY, MOTORBOAT, AutopilotProfile, AutopilotSession
 from firmware_bridge.commands import Encoder, rc_override
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 
 def _settled(vehicle: SimulatedVehicle, channels: dict[int, int], seconds: float = 2.0) -> np.ndarray:

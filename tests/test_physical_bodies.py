@@ -1,7 +1,7 @@
-"""sitl/physical_bodies.py: the physics fidelity with the autonomy's estimator and controller in the loop.
+"""sitl/vehicles/physical_bodies.py: the physics fidelity with the autonomy's estimator and controller in the loop.
 
 Truth is `position`, `heading`, `velocity`; what the vessels believe is `believed()`. Buoy defaults
-(sitl/dynamics.py BuoyParams): effective mass 35 kg, water drag 5 v + 40 v^2 N, air drag
+(sitl/vehicles/dynamics.py BuoyParams): effective mass 35 kg, water drag 5 v + 40 v^2 N, air drag
 0.5 * 1.225 * 1.0 * 0.15 = 0.091875 N/(m/s)^2, so full thrust = 5 + 40 + 0.091875 = 45.091875 N
 (top speed 1 m/s). GPS defaults: 5 Hz, 2 m per axis, 0.1 m/s receiver velocity.
 """
@@ -16,16 +16,16 @@ import numpy as np
 import pytest
 
 from bob_autonomy.geodesy import LocalFrame
-from sitl.bodies import BUOY, EBOT
-from sitl.dynamics import BuoyParams
-from sitl.environment import CurrentSpec, Environment, WindSpec
-from sitl.fleet import LockstepFleet, make_bodies
-from sitl.physical_bodies import PhysicalBodies
-from sitl.recorder import TRAJECTORY_COLUMNS
-from sitl.runner import simulate
-from sitl.scenario import Scenario, validate_scenario
-from sitl.sensors import GpsSpec
-from sitl.world import World
+from sitl.experiments.recorder import TRAJECTORY_COLUMNS
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import Scenario, validate_scenario
+from sitl.fleets.fleet import LockstepFleet, make_bodies
+from sitl.vehicles.bodies import BUOY, EBOT
+from sitl.vehicles.dynamics import BuoyParams
+from sitl.vehicles.physical_bodies import PhysicalBodies
+from sitl.vehicles.sensors import GpsSpec
+from sitl.world.environment import CurrentSpec, Environment, WindSpec
+from sitl.world.world import World
 
 DT_S = 0.1
 AIR_DRAG = 0.5 * 1.225 * 1.0 * 0.15  # 0.091875 N/(m/s)^2
@@ -313,8 +313,8 @@ def test_ekf_and_mpc_vessel_options_drive_a_buoy() -> None:
     # believed position stays within a few metres of the truth.
     import numpy as np
 
-    from sitl.fleet import LockstepFleet
-    from sitl.scenario import validate_scenario
+    from sitl.experiments.scenario import validate_scenario
+    from sitl.fleets.fleet import LockstepFleet
 
     scenario = validate_scenario(
         {

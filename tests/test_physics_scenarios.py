@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import pytest
 
-from sitl.runner import simulate
-from sitl.scenario import load_scenario
+from sitl.experiments.runner import simulate
+from sitl.experiments.scenario import load_scenario
 
 
 def run(name: str, **overrides) -> dict:

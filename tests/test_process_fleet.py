@@ -1,4 +1,5 @@
-"""The process fleet (sitl/vehicle_server.py, sitl/radio_relay.py, sitl/process_fleet.py) over real UDP sockets.
+"""The process fleet (sitl/vehicles/vehicle_server.py, sitl/radio/radio_relay.py, sitl/fleets/process_fleet.py) over
+real UDP sockets.
 
 (a) simulated vehicles: heartbeat, arming with COMMAND_ACK, RC overrides that move a buoy the right way, the
 failsafe after command loss, ports +10 per instance, two clients at once; (b) the radio relay with fake agents
@@ -35,24 +36,24 @@ from bob_autonomy.mesh import encode_state
 from bob_autonomy.vehicle_link import VehicleLink
 from firmware_bridge.commands import heartbeat
 from firmware_bridge.tlog import TlogWriter, split_frames
-from sitl.bodies import BUOY
-from sitl.environment import CurrentSpec, Environment, WindSpec
-from sitl.fleet import build_world, initial_poses
-from sitl.metrics import METRICS
-from sitl.process_fleet import (
+from sitl.experiments.metrics import METRICS
+from sitl.experiments.recorder import TRAJECTORY_COLUMNS
+from sitl.experiments.scenario import BehaviorChoice, ScenarioError, scenario_to_toml, validate_scenario
+from sitl.experiments.swarm_metrics import nearest_neighbor_m
+from sitl.fleets.fleet import build_world, initial_poses
+from sitl.fleets.process_fleet import (
     ProcessFleetError,
     ProcessOptions,
     behavior_parameters,
     run_processes_to_directory,
 )
-from sitl.radio import RadioChannel
-from sitl.radio_relay import RadioRelay
-from sitl.recorder import TRAJECTORY_COLUMNS
-from sitl.scenario import BehaviorChoice, ScenarioError, scenario_to_toml, validate_scenario
-from sitl.swarm_metrics import nearest_neighbor_m
-from sitl.vehicle_physics import VehiclePhysics
-from sitl.vehicle_server import VehicleServer, vehicle_port
-from sitl.world import World
+from sitl.radio.channel import RadioChannel
+from sitl.radio.radio_relay import RadioRelay
+from sitl.vehicles.bodies import BUOY
+from sitl.vehicles.vehicle_physics import VehiclePhysics
+from sitl.vehicles.vehicle_server import VehicleServer, vehicle_port
+from sitl.world.environment import CurrentSpec, Environment, WindSpec
+from sitl.world.world import World
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")

@@ -1,5 +1,5 @@
-"""Starting and stopping a process fleet's autonomy processes (sitl/process_supervision.py, the
-`bob-autonomy fork-server` of bob_autonomy/cli.py, sitl/process_fleet.py).
+"""Starting and stopping a process fleet's autonomy processes (sitl/fleets/process_supervision.py, the
+`bob-autonomy fork-server` of bob_autonomy/cli.py, sitl/fleets/process_fleet.py).
 
 (a) the fork server starts `bob-autonomy` children from one interpreter and reports each one's exit status;
 (b) stop_all reports how long each process took to stop after SIGTERM, and kills (and counts) one that
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import pytest
 
-from sitl.process_fleet import AUTONOMY_COMMAND
-from sitl.process_supervision import ForkServer, SupervisionError, memory_of, start_exec, stop_all
-from sitl.vehicle_server import vehicle_port
-from sitl.vessel_logs import stopped_summary
+from sitl.fleets.process_fleet import AUTONOMY_COMMAND
+from sitl.fleets.process_supervision import ForkServer, SupervisionError, memory_of, start_exec, stop_all
+from sitl.fleets.vessel_logs import stopped_summary
+from sitl.vehicles.vehicle_server import vehicle_port
 from tests.test_process_fleet import _bindable, gone, start_fleet_cli
 
 # Real time, sockets and processes: in one xdist worker with the other process-fleet tests.

@@ -1,4 +1,4 @@
-"""The radio channel (sitl/radio.py): Table 1, monotonicity, range cut-off, seeding, latency, payload limit."""
+"""The radio channel (sitl/radio/channel.py): Table 1, monotonicity, range cut-off, seeding, latency, payload limit."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from sitl.radio import TABLE_1, RadioChannel, measure_delivery_table, table_pairs
+from sitl.radio.channel import TABLE_1, RadioChannel, measure_delivery_table, table_pairs
 
 CHANNEL = RadioChannel()
 

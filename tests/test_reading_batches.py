@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-import sitl.vehicle_transport as transport
+import sitl.vehicles.vehicle_transport as transport
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
-from sitl.fleet import LockstepFleet
-from sitl.reading_batches import merge_by_round
-from sitl.scenario import load_scenario
+from sitl.experiments.scenario import load_scenario
+from sitl.fleets.fleet import LockstepFleet
+from sitl.vehicles.reading_batches import merge_by_round
 
 
 def _gps(agent: int, t: float, velocity: bool = True) -> GpsFix:

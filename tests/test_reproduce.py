@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-import sitl.reproduce
+import sitl.experiments.reproduce
 from sitl.cli import main
-from sitl.reproduce import EXPERIMENTS, PASS_RATE, reproduced, select_experiments, summarise
-from sitl.scenario import ScenarioError, packaged_scenarios
-from sitl.sweep import partial_path, read_partial
+from sitl.experiments.reproduce import EXPERIMENTS, PASS_RATE, reproduced, select_experiments, summarise
+from sitl.experiments.scenario import ScenarioError, packaged_scenarios
+from sitl.experiments.sweep import partial_path, read_partial
 
 
 def table(path: Path) -> list[dict[str, str]]:
@@ -114,14 +114,14 @@ def test_a_criterion_short_of_9_in_10_exits_1_and_says_which(tmp_path: Path, cap
     ],
 )
 def test_bad_reproduce_options_exit_2_before_anything_runs(tmp_path, capsys, monkeypatch, options, expected) -> None:
-    monkeypatch.setattr(sitl.reproduce, "simulate", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr(sitl.experiments.reproduce, "simulate", lambda *a, **k: pytest.fail("a run started"))
     assert main(["reproduce", *options, "--quiet", "--out", str(tmp_path / "r")]) == 2
     assert expected in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 
 def test_an_interrupted_reproduction_resumes(tmp_path: Path, capsys, monkeypatch) -> None:
-    real, calls = sitl.reproduce.simulate, []
+    real, calls = sitl.experiments.reproduce.simulate, []
 
     def interrupted_after_one(*args, **kwargs):
         calls.append(1)
@@ -130,23 +130,23 @@ def test_an_interrupted_reproduction_resumes(tmp_path: Path, capsys, monkeypatch
         return real(*args, **kwargs)
 
     argv = ["reproduce", "1", "--seeds", "2", "--duration", "12", "--quiet", "--out", str(tmp_path / "r")]
-    monkeypatch.setattr(sitl.reproduce, "simulate", interrupted_after_one)
+    monkeypatch.setattr(sitl.experiments.reproduce, "simulate", interrupted_after_one)
     assert main(argv) == 130
     assert len(read_partial(partial_path(tmp_path / "r"))) == 1
-    monkeypatch.setattr(sitl.reproduce, "simulate", real)
+    monkeypatch.setattr(sitl.experiments.reproduce, "simulate", real)
     assert main([*argv, "--resume"]) == 0
     assert [r["seed"] for r in table(tmp_path / "r" / "runs.csv")] == ["1", "2"]
 
 
 def test_a_seed_that_cannot_start_is_a_failed_run_and_the_others_go_on(tmp_path: Path, monkeypatch) -> None:
-    real = sitl.reproduce.simulate
+    real = sitl.experiments.reproduce.simulate
 
     def no_room_at_seed_2(scenario, **kwargs):
         if scenario.seed == 2:
             raise ScenarioError("cannot place 10 agents 0.4 m apart in box (0, 0)..(3, 3)")
         return real(scenario, **kwargs)
 
-    monkeypatch.setattr(sitl.reproduce, "simulate", no_room_at_seed_2)
+    monkeypatch.setattr(sitl.experiments.reproduce, "simulate", no_room_at_seed_2)
     argv = ["reproduce", "1", "--seeds", "3", "--duration", "12", "--quiet", "--out", str(tmp_path / "r")]
     assert main(argv) == 1
     runs = table(tmp_path / "r" / "runs.csv")

@@ -1,4 +1,4 @@
-"""sitl/runner.py and sitl/cli.py: outputs written all or nothing, determinism, and the bob-sitl command."""
+"""sitl/experiments/runner.py and sitl/cli.py: outputs written all or nothing, determinism, and the bob-sitl command."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import sitl.runner
+import sitl.experiments.runner
 from sitl.cli import main
-from sitl.scenario import Scenario, load_scenario, packaged_scenarios, validate_scenario
+from sitl.experiments.scenario import Scenario, load_scenario, packaged_scenarios, validate_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -44,10 +44,10 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
 
 
 @pytest.fixture(scope="module")
-def finished_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, sitl.runner.RunResult, Scenario]:
+def finished_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, sitl.experiments.runner.RunResult, Scenario]:
     out = tmp_path_factory.mktemp("runs") / "consensus"
     scenario = short_consensus()
-    return out, sitl.runner.run_to_directory(scenario, out), scenario
+    return out, sitl.experiments.runner.run_to_directory(scenario, out), scenario
 
 
 def test_outputs_written(finished_run) -> None:
@@ -97,7 +97,7 @@ def test_metrics_json(finished_run) -> None:
 
 def test_rows_and_messages_after_removal(tmp_path: Path) -> None:
     out = tmp_path / "removal"
-    sitl.runner.run_to_directory(short_consensus(remove=True, metrics={"kind": "generic"}), out)
+    sitl.experiments.runner.run_to_directory(short_consensus(remove=True, metrics={"kind": "generic"}), out)
     _, rows = read_rows(out / "trajectory.csv")
     # Frames at 0, 0.5 and 1.0 s hold 10 agents (the frame at 1.0 s is taken before that step's removal),
     # those at 1.5 and 2.0 s the 7 left: 3 * 10 + 2 * 7 = 44 rows.
@@ -118,7 +118,7 @@ def test_rows_and_messages_after_removal(tmp_path: Path) -> None:
 
 def test_heading_consensus_run_with_removal_writes_figures(tmp_path: Path) -> None:
     out = tmp_path / "removal"
-    sitl.runner.run_to_directory(short_consensus(remove=True), out)
+    sitl.experiments.runner.run_to_directory(short_consensus(remove=True), out)
     assert (out / "headings.png").read_bytes()[:8] == PNG_MAGIC
 
 
@@ -141,7 +141,7 @@ def test_heading_consensus_metrics_survive_leader_removal() -> None:
     data["duration_s"] = 2.0
     data["events"][0]["t_s"] = 0.5  # agent 0 becomes the leader ...
     data["events"].append({"t_s": 1.0, "action": "remove", "agents": [0]})  # ... and is then removed
-    result = sitl.runner.simulate(validate_scenario(data, "leader removed"))
+    result = sitl.experiments.runner.simulate(validate_scenario(data, "leader removed"))
     assert isinstance(result.metrics["passed"], bool)
 
 
@@ -149,24 +149,24 @@ def test_failed_run_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     def broken(*args, **kwargs):
         raise RuntimeError("plotting failed")
 
-    monkeypatch.setattr(sitl.runner, "write_figures", broken)
+    monkeypatch.setattr(sitl.experiments.runner, "write_figures", broken)
     out = tmp_path / "run"
     with pytest.raises(RuntimeError, match="plotting failed"):
-        sitl.runner.run_to_directory(short_consensus(duration_s=0.5), out)
+        sitl.experiments.runner.run_to_directory(short_consensus(duration_s=0.5), out)
     assert list(tmp_path.iterdir()) == []
 
 
 def test_failed_rerun_keeps_previous_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     out = tmp_path / "run"
-    sitl.runner.run_to_directory(short_consensus(duration_s=0.5), out)
+    sitl.experiments.runner.run_to_directory(short_consensus(duration_s=0.5), out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     def broken(*args, **kwargs):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(sitl.runner, "write_figures", broken)
+    monkeypatch.setattr(sitl.experiments.runner, "write_figures", broken)
     with pytest.raises(RuntimeError):
-        sitl.runner.run_to_directory(short_consensus(duration_s=1.0), out)
+        sitl.experiments.runner.run_to_directory(short_consensus(duration_s=1.0), out)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
 
@@ -176,16 +176,16 @@ def test_refuses_foreign_non_empty_directory(tmp_path: Path) -> None:
     out.mkdir()
     (out / "thesis.tex").write_text("precious")
     with pytest.raises(FileExistsError):
-        sitl.runner.run_to_directory(short_consensus(duration_s=0.5), out)
+        sitl.experiments.runner.run_to_directory(short_consensus(duration_s=0.5), out)
     assert [p.name for p in out.iterdir()] == ["thesis.tex"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
 
 
 def test_same_seed_same_bytes_other_seed_differs(tmp_path: Path) -> None:
     scenario = short_consensus(duration_s=1.0)
-    sitl.runner.run_to_directory(scenario, tmp_path / "a")
-    sitl.runner.run_to_directory(scenario, tmp_path / "b")
-    sitl.runner.run_to_directory(scenario.with_overrides(seed=8), tmp_path / "c")
+    sitl.experiments.runner.run_to_directory(scenario, tmp_path / "a")
+    sitl.experiments.runner.run_to_directory(scenario, tmp_path / "b")
+    sitl.experiments.runner.run_to_directory(scenario.with_overrides(seed=8), tmp_path / "c")
     a, b, c = ((tmp_path / d / "trajectory.csv").read_bytes() for d in "abc")
     assert a == b
     assert a != c

@@ -1,4 +1,5 @@
-"""Scenario files (sitl/scenario.py): packaged scenarios, clear errors naming file and key, overrides, round trip."""
+"""Scenario files (sitl/experiments/scenario.py): packaged scenarios, clear errors naming file and key, overrides,
+round trip."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sitl.scenario import (
+from sitl.experiments.scenario import (
     PACKAGED,
     Scenario,
     ScenarioError,
@@ -255,8 +256,8 @@ def test_lattice_start_rejects_min_separation() -> None:
 def test_lattice_start_places_the_sites_nearest_the_center(kind: str) -> None:
     from scipy.spatial import cKDTree
 
-    from sitl.fleet import initial_poses, lattice_sites
-    from sitl.world import World
+    from sitl.fleets.fleet import initial_poses, lattice_sites
+    from sitl.world.world import World
 
     spacing, count = 80.0, 16
     lattice = {"center": [5.0, -7.0], "spacing_m": spacing, "kind": kind, "angle_deg": 30.0}
@@ -279,8 +280,8 @@ def test_lattice_start_places_the_sites_nearest_the_center(kind: str) -> None:
 
 
 def test_lattice_sites_outside_the_rooms_are_a_scenario_error() -> None:
-    from sitl.fleet import initial_poses
-    from sitl.world import World
+    from sitl.fleets.fleet import initial_poses
+    from sitl.world.world import World
 
     start = {"lattice": {"center": [5.0, 5.0], "spacing_m": 8.0}}
     scenario = validate_scenario(with_group(count=7, start=start), "lattice")

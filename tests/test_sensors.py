@@ -1,4 +1,5 @@
-"""Simulated sensors (sitl/sensors.py): noise statistics, rates, latency, outages, biases, frames, determinism."""
+"""Simulated sensors (sitl/vehicles/sensors.py): noise statistics, rates, latency, outages, biases, frames,
+determinism."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from bob_autonomy.geodesy import LocalFrame
-from sitl.sensors import (
+from sitl.vehicles.sensors import (
     CompassSpec,
     EncoderSpec,
     GpsSpec,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.fleet import LockstepFleet
-from sitl.scenario import ScenarioError, load_scenario, validate_scenario
+from sitl.experiments.scenario import ScenarioError, load_scenario, validate_scenario
+from sitl.fleets.fleet import LockstepFleet
 
 
 @pytest.mark.parametrize("name", ["avoidance-yield", "avoidance-through", "avoidance-around"])

@@ -6,8 +6,8 @@ import csv
 from pathlib import Path
 
 from sitl.cli import main
-from sitl.scenario import load_scenario
-from sitl.sweep import run_sweep
+from sitl.experiments.scenario import load_scenario
+from sitl.experiments.sweep import run_sweep
 
 
 def test_sweep_writes_one_row_per_run(tmp_path: Path) -> None:

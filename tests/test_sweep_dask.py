@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-import sitl.distributed
+import sitl.experiments.distributed
 from sitl.cli import main
-from sitl.distributed import ClusterError, run_tasks
+from sitl.experiments.distributed import ClusterError, run_tasks
 
 
 def _square(x: int) -> int:
@@ -46,6 +46,6 @@ def test_in_process_tasks_come_back_in_order_and_errors_propagate() -> None:
 
 
 def test_an_unreachable_scheduler_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(sitl.distributed, "CONNECT_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(sitl.experiments.distributed, "CONNECT_TIMEOUT_S", 0.5)
     with pytest.raises(ClusterError, match=r"cannot reach the Dask scheduler at 'tcp://127\.0\.0\.1:9'"):
         run_tasks(_square, [1], lambda i, r: None, scheduler="tcp://127.0.0.1:9", progress=False)

@@ -15,12 +15,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import sitl.sweep
+import sitl.experiments.sweep
 from sitl.cli import main
-from sitl.scenario import ScenarioError, load_scenario
-from sitl.sweep import apply_param, parse_param, partial_path, read_partial, run_sweep
+from sitl.experiments.scenario import ScenarioError, load_scenario
+from sitl.experiments.sweep import apply_param, parse_param, partial_path, read_partial, run_sweep
 
-REAL_SIMULATE = sitl.sweep.simulate
+REAL_SIMULATE = sitl.experiments.sweep.simulate
 TINY = ["heading-consensus", "--agents", "3", "--duration", "1.5", "--quiet"]
 
 
@@ -118,7 +118,7 @@ def test_apply_param_walks_tables_and_lists_and_creates_missing_tables() -> None
     ],
 )
 def test_a_bad_path_or_value_exits_2_before_anything_runs(work: Path, capsys, monkeypatch, param, expected) -> None:
-    monkeypatch.setattr(sitl.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
     status = main(["sweep", *TINY, "--runs", "1", "--param", param, "--out", "o"])
     err = capsys.readouterr().err
     assert status == 2, err
@@ -138,7 +138,7 @@ def test_a_bad_path_or_value_exits_2_before_anything_runs(work: Path, capsys, mo
     ],
 )
 def test_bad_sweep_options_exit_2(work: Path, capsys, monkeypatch, options, expected) -> None:
-    monkeypatch.setattr(sitl.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", lambda *a, **k: pytest.fail("a run started"))
     assert main(["sweep", *TINY, "--runs", "1", "--out", "o", *options]) == 2
     assert expected in capsys.readouterr().err
     assert tree(work) == []
@@ -188,7 +188,7 @@ def test_an_interrupted_sweep_keeps_its_finished_runs_and_resume_skips_them(work
     whole = (work / "whole" / "sweep.csv").read_bytes()
 
     interrupting = Interrupting(allowed=4)
-    monkeypatch.setattr(sitl.sweep, "simulate", interrupting)
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", interrupting)
     assert main([*argv, "--out", "cut"]) == 130
     err = capsys.readouterr().err
     partial = partial_path(work / "cut")
@@ -202,7 +202,7 @@ def test_an_interrupted_sweep_keeps_its_finished_runs_and_resume_skips_them(work
     with open(partial, "a", encoding="utf-8") as handle:
         handle.write('{"run": "torn by a kill')  # a line cut short is ignored
     counting = Interrupting(allowed=10**6)
-    monkeypatch.setattr(sitl.sweep, "simulate", counting)
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", counting)
     assert main([*argv, "--out", "cut", "--resume"]) == 0
     assert counting.calls == 2  # 6 runs, 4 kept
     assert (work / "cut" / "sweep.csv").read_bytes() == whole
@@ -210,7 +210,7 @@ def test_an_interrupted_sweep_keeps_its_finished_runs_and_resume_skips_them(work
 
 
 def test_an_interrupt_before_any_run_finished_leaves_nothing(work: Path, capsys, monkeypatch) -> None:
-    monkeypatch.setattr(sitl.sweep, "simulate", Interrupting(allowed=0))
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", Interrupting(allowed=0))
     assert main(["sweep", *TINY, "--runs", "2", "--out", "deep/er/o"]) == 130
     assert "nothing written to deep/er/o" in capsys.readouterr().err
     assert tree(work) == []
@@ -218,10 +218,10 @@ def test_an_interrupt_before_any_run_finished_leaves_nothing(work: Path, capsys,
 
 def test_resume_takes_only_runs_of_the_same_scenario(work: Path, monkeypatch) -> None:
     argv = ["sweep", *TINY, "--runs", "2"]
-    monkeypatch.setattr(sitl.sweep, "simulate", Interrupting(allowed=1))
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", Interrupting(allowed=1))
     assert main([*argv, "--out", "o"]) == 130
     counting = Interrupting(allowed=10**6)
-    monkeypatch.setattr(sitl.sweep, "simulate", counting)
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", counting)
     # Another duration is another scenario: the kept run does not belong to this sweep and is run again.
     assert main([*argv, "--duration", "1.0", "--out", "o", "--resume"]) == 0
     assert counting.calls == 2
@@ -233,7 +233,7 @@ def test_a_seed_that_cannot_start_is_a_failed_row_and_the_sweep_goes_on(work: Pa
             raise ScenarioError("cannot place 3 agents 0.4 m apart in box (0, 0)..(3, 3)")
         return REAL_SIMULATE(scenario, **kwargs)
 
-    monkeypatch.setattr(sitl.sweep, "simulate", no_room_at_seed_1)
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", no_room_at_seed_1)
     assert main(["sweep", *TINY, "--runs", "2", "--out", "o"]) == 0
     rows = table(work / "o" / "sweep.csv")
     assert [(r["seed"], r["passed"], r["error"]) for r in rows] == [

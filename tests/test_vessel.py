@@ -1,6 +1,6 @@
 """The autonomy process over real UDP: mesh packets, and a Vessel driving a simulated vehicle's autopilot.
 
-The vehicle here is `sitl.mavlink_vehicle.SimulatedVehicle` (the simulator's autopilot) on a real UDP
+The vehicle here is `sitl.vehicles.mavlink_vehicle.SimulatedVehicle` (the simulator's autopilot) on a real UDP
 socket, moving a point-mass buoy; the Vessel is the code `bob-autonomy run` executes.
 """
 

@@ -1,4 +1,4 @@
-"""Geometry of sitl/world.py against values worked out by hand."""
+"""Geometry of sitl/world/world.py against values worked out by hand."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from sitl.world import (
+from sitl.world.world import (
     World,
     point_segment_offsets,
     points_in_polygon,

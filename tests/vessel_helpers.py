@@ -10,7 +10,7 @@ import numpy as np
 
 from bob_autonomy.clock import ScaledWallClock
 from bob_autonomy.geodesy import LocalFrame
-from sitl.mavlink_vehicle import SimulatedVehicle
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 ORIGIN = (1.3405, 103.9560)
 SCALE = 5.0  # the vessel's and the stand-in vehicle's clocks run 5x wall time
@@ -72,5 +72,3 @@ class StandInVehicle(threading.Thread):
         self.running.clear()
         self.join(2.0)
         self.sock.close()
-
-

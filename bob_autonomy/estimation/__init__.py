@@ -28,7 +28,7 @@ water" (M = 35 kg with added mass, c1 = 5 N s/m, c2 = 40 N s^2/m^2). On real
 water a hull moving at v is pushed by E(v): drag from the surface water
 (current plus wind-driven drift) and windage on the hull. The EQUIVALENT DRIFT
 at v is the d for which the nominal law gives that same push, f(d - v) = E(v)
-(`sitl.dynamics.equivalent_drift_mps` computes it from the simulator's force
+(`sitl.vehicles.dynamics.equivalent_drift_mps` computes it from the simulator's force
 balance). For an unpowered buoy it is the velocity over ground the buoy settles
 to (there E = 0, so d = v); for a buoy holding station it is the water velocity
 whose drag alone on a hull at rest equals water and wind together. The two

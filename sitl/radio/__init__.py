@@ -1,0 +1,1 @@
+"""The swarm's radio: the channel model, the broadcast medium of lockstep runs, mesh security, the UDP relay."""

@@ -1,0 +1,115 @@
+"""RC input of a simulated vehicle (sitl.vehicles.mavlink_vehicle): RC_CHANNELS_OVERRIDE and MANUAL_CONTROL from the
+ground station, the RC map and calibration read from the parameters, and the motor demands they make
+(Rover/radio.cpp, Rover/mode.cpp get_pilot_input, GCS_Common.cpp handle_rc_channels_override)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sitl.vehicles.autopilot_rc import (
+    PilotOutput,
+    norm_input_dz,
+    pilot_demand,
+    scale_angle,
+    skid_outputs,
+)
+from sitl.vehicles.vehicle_defs import (
+    BUOY,
+    DRIVING_MODES,
+    MOTORBOAT,
+    OVERRIDE_FIELDS,
+)  # fmt: skip
+
+
+class RcInputHandling:
+    """RC input handling, mixed into SimulatedVehicle (which holds the state it uses)."""
+
+    def _override(self, msg, t_s: float) -> None:
+        if msg.get_srcSystem() != self.gcs_system_id:
+            self.counters.refused += 1  # GCS_Common.cpp handle_rc_channels_override: only from our GCS
+            return
+        raw = [int(getattr(msg, name, 0)) for name in OVERRIDE_FIELDS]
+        if any(not (800 <= v <= 2200 or v in (0, 65534, 65535)) for v in raw):
+            self.counters.rejected += 1  # stricter than ArduPilot, which clamps any value into RCx_MIN..MAX
+            return
+        self.rc.apply_override(raw, t_s)
+        self._gcs_seen_s = t_s
+        self._after_override(t_s)
+
+    def _manual_control(self, msg, t_s: float) -> None:
+        """Rover's MANUAL_CONTROL: y -> steering, z -> throttle channel, over RCx_MIN..MAX (GCS_MAVLink_Rover.cpp
+        handle_manual_control_axes, GCS_Common.cpp manual_override); INT16_MAX releases the channel."""
+        if msg.get_srcSystem() != self.gcs_system_id:
+            self.counters.refused += 1
+            return
+        if any(not (-1000 <= int(a) <= 1000 or int(a) == 32767) for a in (msg.y, msg.z)):
+            self.counters.rejected += 1  # ArduPilot would wrap such a value into a full deflection
+            return
+        for axis, param in ((msg.y, "RCMAP_ROLL"), (msg.z, "RCMAP_THROTTLE")):
+            ch = self.params.get_int(param)
+            if not 1 <= ch <= 8:
+                continue
+            value = 0
+            if int(axis) != 32767:
+                low, high = self.params.get_int(f"RC{ch}_MIN"), self.params.get_int(f"RC{ch}_MAX")
+                value = int(low + (high - low) * (int(axis) + 1000) / 2000)
+            raw = [65535] * 8 + [0] * 10
+            raw[ch - 1] = value
+            self.rc.apply_override(raw, t_s)
+        self._gcs_seen_s = t_s
+        self._after_override(t_s)
+
+    def _after_override(self, t_s: float) -> None:
+        self.rc.update(t_s, self.failsafe_s, self._trims())
+        demand = self._demand(PilotOutput(*self._read_pilot()))
+        self._command = demand
+        self._last_command_s = t_s
+        if self.armed and self.mode in DRIVING_MODES:
+            self.counters.commands += 1
+            self._driving_override = True
+        else:
+            self.counters.idle += 1
+
+    def _rc_setup(self) -> tuple[list[int], dict[str, tuple | None]]:
+        """RC1..8_TRIM and, per role, (channel, MIN, TRIM, MAX, DZ, REVERSED) or None for an invalid map; read
+        again from the parameters only when one has changed."""
+        if self._rc_cache_version != self.params.version or self._rc_cache is None:
+            p = self.params
+            trims = [p.get_int(f"RC{ch}_TRIM") for ch in range(1, 9)]
+            roles: dict[str, tuple | None] = {}
+            for role, name in (("steer", "RCMAP_ROLL"), ("throttle", "RCMAP_THROTTLE"), ("lateral", "RCMAP_YAW")):
+                ch = p.get_int(name)
+                roles[role] = None if not 1 <= ch <= 8 else (
+                    ch, p.get_int(f"RC{ch}_MIN"), p.get_int(f"RC{ch}_TRIM"), p.get_int(f"RC{ch}_MAX"),
+                    p.get_int(f"RC{ch}_DZ"), bool(p.get_int(f"RC{ch}_REVERSED")),
+                )  # fmt: skip
+            self._rc_cache, self._rc_cache_version = (trims, roles), p.version
+        return self._rc_cache
+
+    def _trims(self) -> list[int]:
+        return self._rc_setup()[0]
+
+    def _channel(self, role: str, paddle: bool = False) -> float:
+        setup = self._rc_setup()[1][role]
+        if setup is None:
+            return 0.0  # RC_Channels: a dummy channel for an invalid map
+        ch, *calib = setup
+        pwm = self.rc.radio_in[ch - 1]
+        if pwm == 0:
+            return 0.0
+        return norm_input_dz(pwm, *calib) if paddle else scale_angle(pwm, *calib)
+
+    def _read_pilot(self) -> tuple[float, float, float]:
+        steering, throttle = pilot_demand(self._channel, self.params.get_int("PILOT_STEER_TYPE"), self.skid_steer())
+        lateral = self._channel("lateral") if self.omni() else 0.0
+        return steering, throttle, lateral
+
+    def _demand(self, out: PilotOutput) -> np.ndarray:
+        """The actuator vector (N thrust x, y body; m/s wheels left, right; or a motorboat's throttle and ground
+        steering outputs, each in [-1, 1], steering > 0 to starboard) for motor demands `out`."""
+        if self.kind == MOTORBOAT:
+            return np.array([out.throttle, out.steering])
+        if self.kind == BUOY:
+            return np.array([out.throttle * self.max_actuator, -out.lateral * self.max_actuator])
+        left, right = skid_outputs(out)
+        return np.array([left * self.max_actuator, right * self.max_actuator])

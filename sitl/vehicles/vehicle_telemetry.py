@@ -1,0 +1,104 @@
+"""How the simulated sensors' readings become a simulated vehicle's telemetry (lockstep transport and UDP vehicle
+server alike): each reading is handed to its vehicle (`SimulatedVehicle.observe`), which sends it as its streams
+say (sitl/vehicles/mavlink_vehicle.py)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from firmware_bridge.readings import SensorReadings
+
+if TYPE_CHECKING:
+    from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
+
+
+def encode_readings(
+    readings: SensorReadings,
+    t_s: float,
+    vehicles: Sequence[SimulatedVehicle],
+    frames: list[bytearray],
+    rows: Sequence[int] | None = None,
+    *,
+    metres_per_tick: float = 1.0,
+    fused_position: bool = False,
+) -> None:
+    """Give each vehicle its readings and append to frames[row] what it sends: with "sensor-rate" streams each
+    reading's message at once (SCALED_IMU, GPS_RAW_INT and, when `fused_position`, GLOBAL_POSITION_INT for ground
+    stations, ATTITUDE, WHEEL_DISTANCE of ticks * metres_per_tick); with "ardupilot" streams whatever its schedule
+    says is due. A reading's agent k is vehicle rows[k] (rows None: k itself)."""
+    touched: dict[int, None] = {}
+
+    def vehicle_rows(agents):
+        return [(i, int(k) if rows is None else int(rows[k])) for i, k in enumerate(agents)]
+
+    def direct(row: int) -> bool:
+        touched[row] = None
+        return vehicles[row].streams == "sensor-rate"
+
+    if readings.imu is not None:
+        r = readings.imu
+        for i, row in vehicle_rows(r.agents):
+            vehicles[row].observe("imu", t_s, tuple(r.accel_body_mps2[i]), float(r.gyro_z_radps[i]))
+            if direct(row):
+                frames[row] += vehicles[row].telemetry.scaled_imu(t_s, r.accel_body_mps2[i], r.gyro_z_radps[i])
+    if readings.compass is not None:
+        c = readings.compass
+        for i, row in vehicle_rows(c.agents):
+            vehicles[row].observe("compass", t_s, float(c.heading_rad[i]))
+    if readings.gps is not None:
+        g = readings.gps
+        for i, row in vehicle_rows(g.agents):
+            velocity = None if g.velocity_mps is None else tuple(float(v) for v in g.velocity_mps[i])
+            vehicle = vehicles[row]
+            vehicle.observe("gps", t_s, float(g.lat_deg[i]), float(g.lon_deg[i]), velocity)
+            if direct(row):
+                frames[row] += vehicle.telemetry.gps_raw_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
+                if fused_position:
+                    heading = vehicle.heading()
+                    frames[row] += vehicle.telemetry.global_position_int(
+                        t_s, g.lat_deg[i], g.lon_deg[i], velocity, heading
+                    )
+    if readings.compass is not None:
+        c = readings.compass
+        for i, row in vehicle_rows(c.agents):
+            if direct(row):
+                frames[row] += vehicles[row].telemetry.attitude(t_s, c.heading_rad[i])
+    if readings.encoders is not None:
+        e = readings.encoders
+        for i, row in vehicle_rows(e.agents):
+            distances = tuple(float(x) * metres_per_tick for x in e.ticks[i])
+            vehicles[row].observe("wheels", t_s, distances)
+            if direct(row):
+                frames[row] += vehicles[row].telemetry.wheel_distance(t_s, distances)
+    for row in touched:
+        if vehicles[row].streams == "ardupilot":
+            frames[row] += vehicles[row].stream(t_s)
+
+
+def encode_senses(
+    t_s: float,
+    vehicles: Sequence[SimulatedVehicle],
+    frames: list[bytearray],
+    rows: Sequence[int],
+    ranges_m: np.ndarray,
+    light: np.ndarray,
+    max_range_m: float,
+) -> None:
+    """Give eBot k (vehicle rows[k]) its range finders' and light sensors' readings and append what it sends:
+    DISTANCE_SENSOR per sonar (id = sonar index) and the two light readings as NAMED_VALUE_FLOAT; ranges_m (k,
+    sonars) m, NaN = no echo; light (k, 2) W/m^2. "sensor-rate": every reading; "ardupilot": DISTANCE_SENSOR at
+    its EXTRA3 interval, light with every reading (a script's NAMED_VALUE_FLOAT has no stream)."""
+    for k, row in enumerate(rows):
+        vehicle = vehicles[row]
+        vehicle.observe("ranges", t_s, tuple(float(d) for d in ranges_m[k]), float(max_range_m))
+        vehicle.observe("light", t_s, float(light[k, 0]), float(light[k, 1]))
+        if vehicle.streams == "ardupilot":
+            frames[row] += vehicle.stream(t_s)
+            continue
+        telemetry = vehicle.telemetry
+        for sonar, distance in enumerate(ranges_m[k]):
+            frames[row] += telemetry.distance_sensor(t_s, sonar, float(distance), max_range_m)
+        frames[row] += telemetry.light(t_s, float(light[k, 0]), float(light[k, 1]))

@@ -1,0 +1,158 @@
+"""How readings reach the vessels' autonomy and commands reach the simulated vehicles in a lockstep run.
+
+`DirectTransport` hands the sensor readings over as objects and applies the
+commands as they are (the behaviour-study fast path). `MavlinkTransport` is the
+full stack without sockets: each vehicle is a `SimulatedVehicle` that encodes
+its readings as MAVLink telemetry bytes, which the vessel's `VehicleLink`
+(autonomy code) decodes; the vessel's commands go down as RC_CHANNELS_OVERRIDE
+bytes that the vehicle decodes and applies, with its failsafe. Nothing passes
+but bytes.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+
+import numpy as np
+
+from bob_autonomy.autopilot import AutopilotSession
+from bob_autonomy.senses import EbotSenses
+from bob_autonomy.vehicle_link import BUOY, VehicleLink
+from firmware_bridge.commands import normalised_to_pwm, rc_override
+from firmware_bridge.readings import SensorReadings
+from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
+from sitl.vehicles.reading_batches import merge_by_round
+
+FloatArray = np.ndarray
+
+
+class DirectTransport:
+    """Readings and commands passed through untouched."""
+
+    def down(self, commands: FloatArray, t_s: float) -> FloatArray:
+        return commands
+
+    def up(self, readings: SensorReadings, t_s: float) -> SensorReadings:
+        return readings
+
+    def counters(self) -> dict[str, int]:
+        return {}
+
+
+def motorboat_override(throttle: float, steering: float, target_system: int, encoder) -> bytes:
+    """A motorboat's throttle and steering (each in [-1, 1]) as the vessel sends them (AutopilotSession.override
+    at ArduPilot's default RC calibration): steering on channel 1, throttle on 3, lateral at TRIM, the steering
+    negated in reverse because the autopilot negates it back (Rover/mode.cpp get_pilot_input, PILOT_STEER_TYPE 0)."""
+    steer = -steering if throttle < 0 else steering
+    channels = {1: normalised_to_pwm(steer), 3: normalised_to_pwm(throttle), 4: normalised_to_pwm(0.0)}
+    return rc_override(channels, target_system, 1, encoder=encoder)
+
+
+class MavlinkTransport:
+    """n vehicles of one kind ("buoy", "ebot" or "motorboat"), system ids first_system_id.., talking MAVLink 2 bytes.
+
+    max_actuator: full-scale thrust (N) or wheel speed (m/s) that full RC deflection stands for. metres_per_tick:
+    wheel travel per encoder tick (eBots report wheel travel in metres, as ArduPilot does). clock: the
+    simulated time (s) the vessels stamp readings with. streams, vehicle_params: as `SimulatedVehicle`'s
+    streams and params. With ArduPilot's stream defaults (1 Hz) each vessel asks its vehicle for its messages
+    at the start, with the requests `bob-autonomy` sends (`bob_autonomy.autopilot.AutopilotSession`).
+    """
+
+    def __init__(
+        self,
+        kind: str,
+        n: int,
+        max_actuator: float,
+        clock: Callable[[], float],
+        *,
+        first_system_id: int = 1,
+        metres_per_tick: float = 1.0,
+        failsafe_s: float = 1.0,
+        streams: str = "ardupilot",
+        vehicle_params: dict[str, float] | None = None,
+    ) -> None:
+        self.metres_per_tick = metres_per_tick
+        self.kind = kind
+        self.vehicles = [
+            SimulatedVehicle(
+                first_system_id + k,
+                kind,
+                max_actuator,
+                failsafe_s=failsafe_s,
+                armed=True,
+                streams=streams,
+                params=vehicle_params,
+            )
+            for k in range(n)
+        ]
+        telemetry = BUOY if kind == MOTORBOAT else kind  # a motorboat's telemetry is a buoy's (GPS, compass, IMU)
+        self.links = [VehicleLink(first_system_id + k, telemetry, max_actuator, clock, agent=k) for k in range(n)]
+        self.sensing: list[EbotSenses] | None = None  # each eBot vessel's range and light readings
+        for k, (link, vehicle) in enumerate(zip(self.links, self.vehicles, strict=True)):
+            session = AutopilotSession(first_system_id + k, kind, link.encoder, clock)
+            replies = vehicle.receive(b"".join(session.stream_requests()), float(clock()))
+            if replies:
+                link.receive(replies)
+
+    def down(self, commands: FloatArray, t_s: float) -> FloatArray:
+        """Encode each vessel's command, let its vehicle decode it; returns what the vehicles apply (n, 2)."""
+        applied = np.zeros((len(self.vehicles), 2))
+        for k, (link, vehicle) in enumerate(zip(self.links, self.vehicles, strict=True)):
+            if self.kind == MOTORBOAT:
+                data = motorboat_override(commands[k, 0], commands[k, 1], link.target_system, link.encoder)
+            else:
+                data = link.command(commands[k])
+            replies = vehicle.receive(data, t_s)
+            if replies:
+                link.receive(replies)
+            applied[k] = vehicle.actuator(t_s)
+        return applied
+
+    def up(self, readings: SensorReadings, t_s: float) -> list[object]:
+        """Encode each vehicle's new readings (and its 1 Hz housekeeping) as telemetry; returns the readings the
+        vessels decode from it."""
+        frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
+        encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick)
+        # Decoded vehicle by vehicle, fused as one batch per kind and round (sitl.vehicles.reading_batches).
+        decoded = [link.receive(bytes(data)) if data else [] for link, data in zip(self.links, frames, strict=True)]
+        return merge_by_round(decoded)
+
+    def senses(
+        self,
+        agents: np.ndarray,
+        ranges_m: FloatArray,
+        light: FloatArray,
+        heading_rad: FloatArray,
+        t_s: float,
+        sonar_angles_rad: FloatArray,
+        max_range_m: float,
+    ) -> tuple[FloatArray, FloatArray]:
+        """eBots `agents` (this transport's vehicle indices) send their sonar ranges (k, sonars) m and light
+        readings (k, 2) as telemetry; each vessel turns what it decodes into its Senses with its own heading
+        estimate (k,) rad. Returns obstacles (k, sonars, 2) m (world-aligned offsets) and light (k, 2)."""
+        if self.sensing is None:
+            self.sensing = [EbotSenses(sonar_angles_rad) for _ in self.vehicles]
+        frames = [bytearray() for _ in self.vehicles]
+        encode_senses(t_s, self.vehicles, frames, agents, ranges_m, light, max_range_m)
+        obstacles = np.full((len(agents), len(sonar_angles_rad), 2), np.nan)
+        seen_light = np.full((len(agents), 2), np.nan)
+        for j, k in enumerate(agents):
+            self.sensing[k].feed(self.links[k].receive(bytes(frames[k])))
+            s = self.sensing[k].senses(float(heading_rad[j]), t_s)
+            obstacles[j], seen_light[j] = s.obstacles[0], s.light[0]
+        return obstacles, seen_light
+
+    def counters(self) -> dict[str, int]:
+        """Totals over the vehicles and the vessels' decoders."""
+        totals = defaultdict(int)
+        for vehicle in self.vehicles:
+            for name, value in vars(vehicle.counters).items():
+                totals[f"vehicle_{name}"] += value
+        for link in self.links:
+            c = link.decoder.counters
+            for name in ("decoded", "bad_crc", "malformed", "unknown", "skipped_bytes"):
+                totals[f"vessel_{name}"] += getattr(c, name)
+            for name, count in c.by_type.items():
+                totals[f"vessel_decoded_{name}"] += count
+        return dict(totals)
