@@ -19,8 +19,8 @@ from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from bob_autonomy.pipeline import BuoyPipeline
-from bob_autonomy.vehicle_link import VehicleLink
+from bob_autonomy.onboard.pipeline import BuoyPipeline
+from bob_autonomy.onboard.vehicle_link import VehicleLink
 from sitl.experiments.scenario import load_scenario
 from sitl.fleets.fleet import LockstepFleet
 from sitl.radio.medium import BroadcastMedium

@@ -1,4 +1,5 @@
-"""Cost of the buoy and eBot EKFs (bob_autonomy.ekf): per call for one vessel, and per simulated step for a fleet.
+"""Cost of the buoy and eBot EKFs (bob_autonomy.estimation.ekf): per call for one vessel, and per simulated step for
+a fleet.
 
 One vessel (microseconds per call, median over --calls calls): each call is timed
 on its own (time.perf_counter_ns) inside a realistic stream: every 0.02 s a buoy
@@ -15,7 +16,7 @@ sitl.vehicles.dynamics with the default sitl.vehicles.sensors suite (GPS 5 Hz wi
 so every fix arrives after the IMU reading of its step and is fused by replay;
 compass 10 Hz; IMU 50 Hz, i.e. one reading per step when dt > 0.02 s). The
 sensor stream is recorded first; then, per step, the bank gets exactly the calls
-bob_autonomy.pipeline.BuoyPipeline makes (predict with the accelerometer and the
+bob_autonomy.onboard.pipeline.BuoyPipeline makes (predict with the accelerometer and the
 world-frame thrust command, gyro, GPS position and velocity, compass with its
 measurement time) plus the controller's estimate() and drift(); the whole step
 is timed. Reported: median and mean over the steps after the first 10 s, for
@@ -36,8 +37,8 @@ import time
 
 import numpy as np
 
-from bob_autonomy.ekf import BuoyEkf, BuoyEkfBank, EbotEkf
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.estimation.ekf import BuoyEkf, BuoyEkfBank, EbotEkf
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
 from sitl.vehicles.sensors import SensorSuite
 

@@ -1,4 +1,4 @@
-"""Error of the local tangent-plane frame (bob_autonomy.geodesy) against geographiclib's WGS-84 geodesics.
+"""Error of the local tangent-plane frame (bob_autonomy.core.geodesy) against geographiclib's WGS-84 geodesics.
 
 Points at distances from 10 m to 5 km (log-spaced) in 16 directions from an
 origin (default: a Singapore reservoir, lat 1.33, lon 103.92) are placed with
@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from bob_autonomy.geodesy import WGS84_A_M, WGS84_E2, LocalFrame
+from bob_autonomy.core.geodesy import WGS84_A_M, WGS84_E2, LocalFrame
 
 try:
     from geographiclib.geodesic import Geodesic

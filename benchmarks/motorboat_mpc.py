@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from bob_autonomy.motorboat_control import MotorboatModel, MotorboatMpc
-from bob_autonomy.mpc import BuoyMpc
+from bob_autonomy.control.motorboat_control import MotorboatModel, MotorboatMpc
+from bob_autonomy.control.mpc import BuoyMpc
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
 from sitl.vehicles.motorboat import MotorboatDynamics, params_for
 

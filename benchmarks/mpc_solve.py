@@ -36,8 +36,8 @@ import time
 import casadi as ca
 import numpy as np
 
-from bob_autonomy.mpc import QP_PLUGINS, BuoyMpc, DiffDriveMpc
-from bob_autonomy.velocity_control import BuoyVelocityController, DiffDriveController
+from bob_autonomy.control.mpc import QP_PLUGINS, BuoyMpc, DiffDriveMpc
+from bob_autonomy.control.velocity_control import BuoyVelocityController, DiffDriveController
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
 
 DT_S = 0.5

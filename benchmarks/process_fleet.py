@@ -157,7 +157,7 @@ def profile_startup(top: int = 8) -> dict[str, object]:
         if len(tops) >= top:
             break
     from bob_autonomy.cli import _apply_config_file, _parser, config_from_args
-    from bob_autonomy.vessel import Vessel
+    from bob_autonomy.onboard.vessel import Vessel
 
     argv = ["run", "--vehicle", "udpout:127.0.0.1:9", "--system-id", "1", "--behavior", "bob-rule"]
     argv += ["--origin", "1.3405,103.956", "--mesh", "udpout:127.0.0.1:9", "--dt", "0.1"]

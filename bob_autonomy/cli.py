@@ -37,10 +37,15 @@ import tomllib
 import traceback
 
 from behaviors.registry import BEHAVIORS
-from bob_autonomy.autopilot_start import StartOptions
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.safe_read import MAX_SETTINGS_FILE_BYTES, UnreadableFileError, describe_parse_error, read_small_file
-from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.safe_read import (
+    MAX_SETTINGS_FILE_BYTES,
+    UnreadableFileError,
+    describe_parse_error,
+    read_small_file,
+)
+from bob_autonomy.onboard.autopilot_start import StartOptions
+from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
 
 
 def _describe_behaviors() -> str:
@@ -416,8 +421,8 @@ def serve_forks(request_fd: int = 0, reply_fd: int = 1) -> int:
     the system's monotonic clock, s); {"error": TEXT} for a bad request. At end of input: waits for its
     children, then exits 0.
     """
-    import bob_autonomy.vessel  # noqa: F401 - everything a vessel imports, once, before any fork
-    from bob_autonomy.mpc import BuoyMpc
+    import bob_autonomy.onboard.vessel  # noqa: F401 - everything a vessel imports, once, before any fork
+    from bob_autonomy.control.mpc import BuoyMpc
 
     BuoyMpc()  # loads casadi's QP plugin library before the forks
     die_with_parent()

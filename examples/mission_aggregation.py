@@ -6,7 +6,7 @@ Start a fleet whose ground-station port is left to this script, then run the scr
     python examples/mission_aggregation.py --vessels 10
 
 It talks to the vessels' autonomy processes only through MAVLink
-(`bob_autonomy.mission.MissionClient` on UDP 14600): discovers them by heartbeat,
+(`bob_autonomy.ground.mission.MissionClient` on UDP 14600): discovers them by heartbeat,
 sets the BoB rule with p0 = 50 m fleet-wide and starts it, switches p0 to 5 m
 and waits until the convex hull of the positions the vessels report has shrunk
 by the wanted factor, then sets p0 back to 50 m and waits until the swarm has
@@ -24,8 +24,8 @@ import time
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.mission import MissionClient, MissionError
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.ground.mission import MissionClient, MissionError
 
 
 def hull_area_m2(client: MissionClient, vessels: list[int]) -> float:

@@ -17,8 +17,8 @@ import json
 import sys
 import time
 
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.mission import MissionClient, MissionError
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.ground.mission import MissionClient, MissionError
 
 
 def run(args: argparse.Namespace) -> dict:

@@ -156,7 +156,7 @@ def classify_frame(
 
     The checksum of a message id the dialect does not know cannot be verified (no CRC_EXTRA), so an unknown
     frame is only believed when `followed`; otherwise its start marker is taken for noise. Signatures are
-    not checked here (see bob_autonomy.gcs for signed links)."""
+    not checked here (see bob_autonomy.ground.gcs for signed links)."""
     magic = frame[0]
     if magic == _V2:
         if frame[2] & ~_SIGNED:

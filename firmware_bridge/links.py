@@ -14,7 +14,7 @@ Who a UDP link talks to (issue 17: one datagram must not take a link over):
 
 - udpin: writes go to every *peer*: an address that was confirmed and has been heard from, confirmed,
   within `peer_timeout_s` (10 s). No datagram moves the reply address by itself. A caller that
-  authenticates what it reads (`bob_autonomy.gcs`, with MAVLink 2 signing) uses `read_from` and confirms
+  authenticates what it reads (`bob_autonomy.ground.gcs`, with MAVLink 2 signing) uses `read_from` and confirms
   a sender only when its frames passed those checks; plain `read` confirms a sender whose datagram holds
   at least one well-formed MAVLink frame (a known message with the right checksum,
   `firmware_bridge.decoder.contains_mavlink_frame`). Datagrams from others are still returned (the caller

@@ -84,7 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     fleet.add_argument(
         "--external-gcs",
         action="store_true",
-        help="leave --gcs-port to your mission script (bob_autonomy.mission); the scenario may not have events",
+        help="leave --gcs-port to your mission script (bob_autonomy.ground.mission); the scenario may not have events",
     )
     fleet.add_argument(
         "--vessel-nice",

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.autopilot import BUOY, EBOT, AutopilotProfile, AutopilotSession
-from bob_autonomy.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
-from bob_autonomy.velocity_control import BuoyModel
+from bob_autonomy.control.velocity_control import BuoyModel
+from bob_autonomy.onboard.autopilot import BUOY, EBOT, AutopilotProfile, AutopilotSession
+from bob_autonomy.onboard.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
 from firmware_bridge.commands import Encoder
 from firmware_bridge.rc_channels import RcChannelRange, RcMap
 
@@ -293,8 +293,8 @@ def test_command_line_takes_a_southern_origin_and_the_autopilot_options() -> Non
 def test_an_ebot_pipeline_with_a_frame_fuses_gps_fixes() -> None:
     # A rover outdoors without wheel encoders (ArduPilot sends WHEEL_DISTANCE only with WENC_TYPE set): the
     # estimate follows the GPS instead of staying at the start pose (issue #18).
-    from bob_autonomy.geodesy import LocalFrame
-    from bob_autonomy.pipeline import EbotPipeline
+    from bob_autonomy.core.geodesy import LocalFrame
+    from bob_autonomy.onboard.pipeline import EbotPipeline
     from firmware_bridge.readings import GpsFix
 
     frame = LocalFrame(-35.363261, 149.165230)
@@ -326,8 +326,8 @@ def test_messages_the_autopilot_will_not_schedule_are_asked_by_their_stream_grou
 def test_a_diverged_estimate_is_noticed_and_reset() -> None:
     # Issue #18: on a 9 m/s boat the filter lagged, diverged to 2e34 m and the process died. The pipeline now
     # tells a diverged estimate (far from a fresh fix, or non-finite) and starts afresh.
-    from bob_autonomy.geodesy import LocalFrame
-    from bob_autonomy.pipeline import BuoyPipeline
+    from bob_autonomy.core.geodesy import LocalFrame
+    from bob_autonomy.onboard.pipeline import BuoyPipeline
     from firmware_bridge.readings import GpsFix
 
     frame = LocalFrame(-35.363261, 149.165230)
@@ -346,8 +346,8 @@ def test_a_diverged_estimate_is_noticed_and_reset() -> None:
 def test_an_ebot_without_wheel_readings_follows_a_moving_gps_fix() -> None:
     # Without encoders nothing predicts the motion: the position variance must grow between fixes, or the
     # filter grows sure of an old position and lags (3.3 m median on ArduPilot's skid-steer SITL before).
-    from bob_autonomy.geodesy import LocalFrame
-    from bob_autonomy.pipeline import EbotPipeline
+    from bob_autonomy.core.geodesy import LocalFrame
+    from bob_autonomy.onboard.pipeline import EbotPipeline
     from firmware_bridge.readings import GpsFix
 
     frame = LocalFrame(-35.363261, 149.165230)

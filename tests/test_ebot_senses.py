@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.senses import EbotSenses
-from bob_autonomy.vessel import EbotConfig
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.onboard.senses import EbotSenses
+from bob_autonomy.onboard.vessel import EbotConfig
 from firmware_bridge.decoder import TelemetryDecoder
 from firmware_bridge.readings import LightReading, RangeReading
 from firmware_bridge.telemetry import TelemetryEncoder
@@ -75,7 +75,7 @@ def test_the_vessel_sees_the_walls_the_simulator_sees() -> None:
 
 
 def test_the_ebot_estimator_ignores_range_and_light_readings() -> None:
-    from bob_autonomy.pipeline import EbotPipeline
+    from bob_autonomy.onboard.pipeline import EbotPipeline
 
     enc = TelemetryEncoder(1)
     readings = TelemetryDecoder(lambda: 1.0).feed(

@@ -9,8 +9,8 @@ import random
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.clock import ManualClock
-from bob_autonomy.gcs import (
+from bob_autonomy.core.clock import ManualClock
+from bob_autonomy.ground.gcs import (
     GcsComponent,
     MavlinkCodec,
     SigningKeyError,
@@ -18,7 +18,7 @@ from bob_autonomy.gcs import (
     passphrase_to_key,
     signing_timestamp,
 )
-from bob_autonomy.params import BEHAVIOR_NAMES, ParameterStore
+from bob_autonomy.ground.params import BEHAVIOR_NAMES, ParameterStore
 
 SYSID = 3
 KEY = hashlib.sha256(b"fleet key").digest()

@@ -1,4 +1,4 @@
-"""LocalFrame (bob_autonomy/geodesy.py): WGS-84 latitude/longitude <-> local x east, y north (m)."""
+"""LocalFrame (bob_autonomy/core/geodesy.py): WGS-84 latitude/longitude <-> local x east, y north (m)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.geodesy import LocalFrame
 
 LAT0, LON0 = 1.33, 103.92  # a Singapore reservoir
 A = 6378137.0  # WGS-84 semi-major axis (m)

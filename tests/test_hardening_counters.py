@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.clock import ManualClock, ScaledWallClock
-from bob_autonomy.gcs import GcsComponent, MavlinkCodec
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import encode_state
-from bob_autonomy.params import ParameterStore
-from bob_autonomy.vessel import Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ManualClock, ScaledWallClock
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.ground.gcs import GcsComponent, MavlinkCodec
+from bob_autonomy.ground.params import ParameterStore
+from bob_autonomy.network.mesh import encode_state
+from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 from sitl.fleets.vessel_logs import gcs_counters, stopped_summary
 from sitl.radio.radio_relay import RadioRelay
 
@@ -61,7 +61,7 @@ EXPECTED = {"unsigned_rejected": 2, "bad_signature": 1, "replay_rejected": 1, "m
 def test_the_gcs_component_logs_its_rejection_counters_every_minute_when_they_change(caplog) -> None:
     clock = ManualClock(0.0)
     component = GcsComponent(3, ParameterStore(), signing_key=KEY, clock=clock.now)
-    caplog.set_level(logging.INFO, logger="bob_autonomy.gcs")
+    caplog.set_level(logging.INFO, logger="bob_autonomy.ground.gcs")
     component.tick()
     _bad_input(component)
     assert component.counters.security() == EXPECTED

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from vessel_helpers import ORIGIN, SCALE, StandInVehicle
 
 from bob_autonomy.cli import main
-from bob_autonomy.params import MAX_FILE_BYTES, ParameterStore
+from bob_autonomy.ground.params import MAX_FILE_BYTES, ParameterStore
 
 DEEP = 100_000
 DEFAULTS = ParameterStore().values()
@@ -73,7 +73,7 @@ def test_a_corrupt_parameter_file_is_set_aside_and_the_next_start_is_clean(
 ) -> None:
     path = tmp_path / "params.json"
     path.write_bytes(content)
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.params"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.ground.params"):
         store = ParameterStore(path)
     assert store.values() == DEFAULTS and store.goals == [] and store.fence == []
     assert store.load_problem is not None
@@ -146,7 +146,7 @@ def test_an_empty_path_is_refused_with_a_message() -> None:
 def test_many_unknown_names_make_one_warning(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = tmp_path / "params.json"
     path.write_text(json.dumps({"params": {f"JUNK_{k}": k for k in range(5000)} | {"BOB_H": 1}}))
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.params"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.ground.params"):
         store = ParameterStore(path)
     assert store.get("BOB_H") == 1 and store.load_problem is None
     assert len(caplog.records) == 1 and "4990 more" in caplog.text
@@ -161,7 +161,7 @@ def test_a_write_killed_before_the_rename_leaves_a_temporary_that_the_next_start
     script = textwrap.dedent(
         f"""
         import os, signal
-        from bob_autonomy.params import ParameterStore
+        from bob_autonomy.ground.params import ParameterStore
         store = ParameterStore({str(path)!r})
         os.replace = lambda *a: os.kill(os.getpid(), signal.SIGKILL)  # die between fsync and rename
         store.set("BOB_P0_M", 6.0)

@@ -18,9 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.clock import ManualClock
-from bob_autonomy.gcs import AutopilotCommand, GcsComponent, MavlinkCodec
-from bob_autonomy.params import ParameterStore
+from bob_autonomy.core.clock import ManualClock
+from bob_autonomy.ground.gcs import AutopilotCommand, GcsComponent, MavlinkCodec
+from bob_autonomy.ground.params import ParameterStore
 
 SYSID = 3
 LAT, LON = 45.0001, 7.0001

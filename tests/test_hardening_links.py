@@ -22,13 +22,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.clock import ScaledWallClock
-from bob_autonomy.gcs import MavlinkCodec
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import LinkMesh, PacketError, PacketValueError, decode_state, encode_state, packet_agent_id
-from bob_autonomy.vehicle_link import VehicleLink
-from bob_autonomy.vessel import Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.ground.gcs import MavlinkCodec
+from bob_autonomy.network.mesh import (
+    LinkMesh,
+    PacketError,
+    PacketValueError,
+    decode_state,
+    encode_state,
+    packet_agent_id,
+)
+from bob_autonomy.onboard.vehicle_link import VehicleLink
+from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 from firmware_bridge import commands
 from firmware_bridge.commands import Encoder
 from firmware_bridge.decoder import TelemetryDecoder, contains_mavlink_frame

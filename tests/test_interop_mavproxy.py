@@ -35,9 +35,9 @@ import pytest
 from interop_fleet import interop_fleet
 from vessel_helpers import ORIGIN, StandInVehicle
 
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.clock import ScaledWallClock
-from bob_autonomy.vessel import Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 
 HERE = Path(__file__).resolve().parent  # where mavproxy_probe.py is
 MAVPROXY = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent)) or shutil.which("mavproxy.py")
@@ -167,7 +167,7 @@ AUTOPILOT, AUTONOMY = 1, 191
 ROVER_MANUAL, ROVER_HOLD = 0, 4  # Rover/mode.h
 ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED
 P0_M = 100.0  # the fleet scenario's p0 (tests/interop_fleet.py)
-BOB_PARAMS = 17  # bob_autonomy.params.PARAMS
+BOB_PARAMS = 17  # bob_autonomy.ground.params.PARAMS
 FINDINGS: dict = {}
 
 

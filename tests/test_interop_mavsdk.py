@@ -50,7 +50,7 @@ from mavsdk.plugins.telemetry.telemetry import FixType, FlightMode, Telemetry  #
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from bob_autonomy.params import PARAMS  # noqa: E402
+from bob_autonomy.ground.params import PARAMS  # noqa: E402
 
 VESSELS = (1, 2)
 GCS_SYSTEM_ID = 245  # MAVSDK's ground-station system id (Configuration GROUND_STATION)

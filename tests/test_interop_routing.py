@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.gcs import GcsComponent
-from bob_autonomy.params import ParameterStore
+from bob_autonomy.ground.gcs import GcsComponent
+from bob_autonomy.ground.params import ParameterStore
 
 VESSEL, AUTOPILOT, AUTONOMY = 7, 1, 191
 

@@ -1,4 +1,5 @@
-"""Authenticated mesh packets (bob_autonomy.mesh_auth, bob_autonomy.mesh): written as an attacker would."""
+"""Authenticated mesh packets (bob_autonomy.network.mesh_auth, bob_autonomy.network.mesh): written as an attacker
+would."""
 
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import (
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.network.mesh import (
     MAX_PACKET_BYTES,
     VERSION_SIGNED,
     LinkMesh,
@@ -27,7 +28,7 @@ from bob_autonomy.mesh import (
     packet_bytes,
     signed_part,
 )
-from bob_autonomy.mesh_auth import (
+from bob_autonomy.network.mesh_auth import (
     TAG_BYTES,
     TRAILER_BYTES,
     AuthError,

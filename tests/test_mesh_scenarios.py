@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import MAX_PACKET_BYTES, encode_state, packet_bytes
-from bob_autonomy.mesh_auth import MeshSigner
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.network.mesh import MAX_PACKET_BYTES, encode_state, packet_bytes
+from bob_autonomy.network.mesh_auth import MeshSigner
 from sitl.cli import main
 from sitl.experiments.runner import simulate
 from sitl.experiments.scenario import load_scenario, packaged_scenarios, validate_scenario

@@ -12,10 +12,10 @@ from collections.abc import Callable
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.gcs import GcsComponent
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.mission import MissionClient, MissionError, MissionTimeoutError
-from bob_autonomy.params import PARAMS, ParamError, ParameterStore, ParamSpec
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.ground.gcs import GcsComponent
+from bob_autonomy.ground.mission import MissionClient, MissionError, MissionTimeoutError
+from bob_autonomy.ground.params import PARAMS, ParamError, ParameterStore, ParamSpec
 
 KEY = hashlib.sha256(b"fleet passphrase").digest()
 HOME = (45.0, 7.0)

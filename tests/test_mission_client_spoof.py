@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from bob_autonomy.gcs_codec import MavlinkCodec
-from bob_autonomy.mission import MissionClient
+from bob_autonomy.ground.gcs_codec import MavlinkCodec
+from bob_autonomy.ground.mission import MissionClient
 
 pytestmark = pytest.mark.xdist_group("realtime")
 KEY = bytes(range(32))

@@ -1,4 +1,4 @@
-"""The motorboat controllers (bob_autonomy.motorboat_control) against the simulated motorboat
+"""The motorboat controllers (bob_autonomy.control.motorboat_control) against the simulated motorboat
 (sitl.vehicles.motorboat)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from bob_autonomy.motorboat_control import (
+from bob_autonomy.control.motorboat_control import (
     HOLD_SPEED_MPS,
     TURN_SPEED_FRACTION,
     MotorboatController,

@@ -88,7 +88,7 @@ def test_a_mixed_fleet_of_buoys_and_motorboats_runs_and_logs_each_body() -> None
 def test_a_heading_held_in_place_is_said_and_counted_not_silently_dropped(caplog) -> None:
     data = _scenario(duration_s=5.0)
     data["groups"][0].update(behavior="heading-consensus", params={})  # cruise_speed 0: turn in place
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.onboard.pipeline"):
         fleet = LockstepFleet(validate_scenario(data, "test"))
         for _ in range(4):
             fleet.step()

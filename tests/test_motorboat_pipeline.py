@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.motorboat_control import MotorboatModel
-from bob_autonomy.pipeline import BuoyPipeline, MotorboatPipeline
+from bob_autonomy.control.motorboat_control import MotorboatModel
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.onboard.pipeline import BuoyPipeline, MotorboatPipeline
 from sitl.vehicles.motorboat import MotorboatDynamics, params_for
 from sitl.vehicles.sensors import SensorSuite
 

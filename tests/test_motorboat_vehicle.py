@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.autopilot import BUOY, MOTORBOAT, AutopilotProfile, AutopilotSession
+from bob_autonomy.onboard.autopilot import BUOY, MOTORBOAT, AutopilotProfile, AutopilotSession
 from firmware_bridge.commands import Encoder, rc_override
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 

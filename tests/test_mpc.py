@@ -1,4 +1,4 @@
-"""bob_autonomy/mpc.py: the buoy's linear MPC (QP) and the eBot's MPC.
+"""bob_autonomy/control/mpc.py: the buoy's linear MPC (QP) and the eBot's MPC.
 
 The closed loops run a first-order simulator written here (not the SITL's):
 m dv/dt = T - (c1 + c2 |v - w|)(v - w) with the nominal coefficients (35 kg,
@@ -17,8 +17,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from bob_autonomy.mpc import BuoyMpc, DiffDriveMpc, polygon_normals
-from bob_autonomy.velocity_control import BuoyModel
+from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc, polygon_normals
+from bob_autonomy.control.velocity_control import BuoyModel
 
 MODEL = BuoyModel()
 DT_S = 0.5
@@ -190,10 +190,10 @@ def test_forced_failure_gives_the_fallback_within_limits(failure: str, monkeypat
         monkeypatch.setattr(mpc, "_solve_qp", _nan_plan.__get__(mpc))
     desired, velocity, water, limit = np.array([0.8, 0.0]), np.array([0.1, 0.0]), np.array([0.0, 0.1]), 30.0
     previous = np.array([5.0, 0.0])
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.mpc"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.control.mpc"):
         result = mpc.solve(desired, velocity, water, math.pi / 2, limit, previous)
     assert not result.ok and result.fallback and mpc.fallbacks == 1
-    assert "fallback" in result.status and any(r.name == "bob_autonomy.mpc" for r in caplog.records)
+    assert "fallback" in result.status and any(r.name == "bob_autonomy.control.mpc" for r in caplog.records)
     if failure == "budget":
         assert "time budget" in result.status
     # Saturated proportional command: feed-forward 5*0.806 + 40*0.806^2 ~ 30 N east plus 42 N of
@@ -290,10 +290,10 @@ def test_ebot_default_form_backs_up_to_a_wish_almost_behind() -> None:
 def test_ebot_forced_failure_gives_the_heuristic_fallback(monkeypatch, caplog) -> None:
     mpc = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
     monkeypatch.setattr(mpc, "_solve_plan", _raise)
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.mpc"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.control.mpc"):
         result = mpc.solve(np.array([0.0, 0.5]), 0.0)
     assert not result.ok and result.fallback and mpc.fallbacks == 1
-    assert any(r.name == "bob_autonomy.mpc" for r in caplog.records)
+    assert any(r.name == "bob_autonomy.control.mpc" for r in caplog.records)
     assert np.all(np.abs(result.wheels_mps) <= 0.2 + 1e-12)
     assert result.wheels_mps[1] > result.wheels_mps[0]  # the heuristic turns left too
 

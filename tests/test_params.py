@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from behaviors.registry import BEHAVIORS
-from bob_autonomy.params import (
+from bob_autonomy.ground.params import (
     BEHAVIOR_NAMES,
     PARAM_TYPE_INT32,
     PARAM_TYPE_REAL32,
@@ -149,7 +149,7 @@ def test_change_callbacks(caplog) -> None:
 def test_corrupt_file_is_reported_set_aside_and_defaults_used(tmp_path, caplog, content, problem) -> None:
     path = tmp_path / "params.json"
     path.write_text(content)
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.params"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.ground.params"):
         store = ParameterStore(path)
     assert store.values() == ParameterStore().values()
     assert store.goals == [] and store.fence == []

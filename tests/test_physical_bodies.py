@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.geodesy import LocalFrame
 from sitl.experiments.recorder import TRAJECTORY_COLUMNS
 from sitl.experiments.runner import simulate
 from sitl.experiments.scenario import Scenario, validate_scenario

@@ -1,4 +1,4 @@
-"""Plausibility checks on what neighbours say (bob_autonomy.plausibility, NeighborTable, Agent)."""
+"""Plausibility checks on what neighbours say (bob_autonomy.core.plausibility, NeighborTable, Agent)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from behaviors.heading_consensus import HeadingConsensus
 from bob_autonomy import Agent, AgentState, ManualClock, NeighborTable, Pose
-from bob_autonomy.plausibility import JUMP, NON_FINITE, PLAUSIBLE, TOO_FAR, PlausibilityLimits, implausible
+from bob_autonomy.core.plausibility import JUMP, NON_FINITE, PLAUSIBLE, TOO_FAR, PlausibilityLimits, implausible
 from tests.test_agent import FakeBody, FakeNetwork
 
 LIMITS = PlausibilityLimits(max_speed_mps=2.0, slack_m=20.0, range_m=300.0, range_factor=1.5)  # 470 m reach

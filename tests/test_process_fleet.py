@@ -30,10 +30,10 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import encode_state
-from bob_autonomy.vehicle_link import VehicleLink
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.network.mesh import encode_state
+from bob_autonomy.onboard.vehicle_link import VehicleLink
 from firmware_bridge.commands import heartbeat
 from firmware_bridge.tlog import TlogWriter, split_frames
 from sitl.experiments.metrics import METRICS

@@ -1,4 +1,4 @@
-"""The MPC time budget counts the solve's CPU time (bob_autonomy/mpc.py): in a process fleet 45 autonomy
+"""The MPC time budget counts the solve's CPU time (bob_autonomy/control/mpc.py): in a process fleet 45 autonomy
 processes share 2 cores, and a solve preempted for 20-56 ms of wall time had used ~0.1 ms; discarding its plan
 for the fallback saved no time (the check comes after the solve) and made the command worse.
 
@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from bob_autonomy.mpc import BuoyMpc, DiffDriveMpc
+from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc
 
 BUDGET_S = 0.02
 
@@ -40,7 +40,7 @@ def _computing(solve, seconds: float):
 def test_buoy_mpc_budget_is_cpu_time(slow, monkeypatch, caplog) -> None:
     mpc = BuoyMpc(dt_s=0.1, time_budget_s=BUDGET_S)
     monkeypatch.setattr(mpc, "_solve_qp", slow(mpc._solve_qp, 2.5 * BUDGET_S))
-    with caplog.at_level(logging.WARNING, logger="bob_autonomy.mpc"):
+    with caplog.at_level(logging.WARNING, logger="bob_autonomy.control.mpc"):
         result = mpc.solve(np.array([0.5, 0.0]), np.zeros(2), np.zeros(2), 0.0, 45.0)
     assert result.solve_time_s >= 2.5 * BUDGET_S  # the wall time is still reported
     if slow is _waiting:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.geodesy import LocalFrame
 from sitl.vehicles.sensors import (
     CompassSpec,
     EncoderSpec,

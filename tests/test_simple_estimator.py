@@ -1,4 +1,4 @@
-"""bob_autonomy/simple_estimator.py: alpha-beta GPS tracking, compass smoothing, eBot dead reckoning.
+"""bob_autonomy/estimation/simple_estimator.py: alpha-beta GPS tracking, compass smoothing, eBot dead reckoning.
 
 Expected values are worked out by hand in the comments (frames: x east, y north in m,
 heading in rad from east, counter-clockwise).
@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from bob_autonomy.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, wrap
+from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, wrap
 
 FIX_PERIOD_S = 0.2  # 5 Hz GPS
 

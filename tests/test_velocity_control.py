@@ -1,4 +1,4 @@
-"""bob_autonomy/velocity_control.py: buoy thrust (feed-forward + P, body frame, clipped) and eBot wheel speeds.
+"""bob_autonomy/control/velocity_control.py: buoy thrust (feed-forward + P, body frame, clipped) and eBot wheel speeds.
 
 Nominal buoy model: mass 35 kg, drag 5 N/(m/s) + 40 N/(m/s)^2, max thrust 45 N, gain 1.5 /s
 (so the proportional correction is 35 * 1.5 = 52.5 N per m/s of velocity error).
@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from bob_autonomy.velocity_control import (
+from bob_autonomy.control.velocity_control import (
     BuoyModel,
     BuoyVelocityController,
     DiffDriveController,

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from vessel_helpers import ORIGIN, SCALE, StandInVehicle
 
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.clock import ScaledWallClock
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import (
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.network.mesh import (
     MAX_PACKET_BYTES,
     PacketError,
     PacketReader,
@@ -27,7 +27,7 @@ from bob_autonomy.mesh import (
     encode_state,
     packet_agent_id,
 )
-from bob_autonomy.vessel import VehicleError, Vessel, VesselConfig
+from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")

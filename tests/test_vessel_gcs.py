@@ -1,6 +1,6 @@
 """The autonomy process as its vessel's MAVLink component, driven by a mission script over real UDP.
 
-A Vessel (what `bob-autonomy run` executes) drives the stand-in vehicle; `bob_autonomy.mission.MissionClient`
+A Vessel (what `bob-autonomy run` executes) drives the stand-in vehicle; `bob_autonomy.ground.mission.MissionClient`
 talks to the vessel's GCS port: discovery, parameters that change the behaviour, goal and fence uploads,
 start/stop. Plus the supervisor's geometry and the command line's config file and SIGTERM handling.
 """
@@ -20,15 +20,15 @@ import numpy as np
 import pytest
 from vessel_helpers import ORIGIN, SCALE, StandInVehicle
 
-from bob_autonomy.behavior_config import BehaviorChoice
 from bob_autonomy.cli import _apply_config_file, _parser, config_from_args
-from bob_autonomy.clock import ScaledWallClock
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.mission import MissionClient
-from bob_autonomy.params import ParameterStore
-from bob_autonomy.safety import inside_polygon, limit_to_fence, return_inside
-from bob_autonomy.supervisor import Supervisor, behavior_params
-from bob_autonomy.vessel import Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.ground.mission import MissionClient
+from bob_autonomy.ground.params import ParameterStore
+from bob_autonomy.ground.safety import inside_polygon, limit_to_fence, return_inside
+from bob_autonomy.ground.supervisor import Supervisor, behavior_params
+from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")

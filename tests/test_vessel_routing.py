@@ -12,9 +12,9 @@ import pytest
 from pymavlink import mavutil
 from vessel_helpers import ORIGIN, SCALE, StandInVehicle
 
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.clock import ScaledWallClock
-from bob_autonomy.vessel import Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 
 pytestmark = pytest.mark.xdist_group("realtime")
 

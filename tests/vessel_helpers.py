@@ -8,8 +8,8 @@ import threading
 
 import numpy as np
 
-from bob_autonomy.clock import ScaledWallClock
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.core.geodesy import LocalFrame
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 ORIGIN = (1.3405, 103.9560)

@@ -9,7 +9,7 @@ over a stack of filters (`kalman_predict_rows`, `kalman_update_rows`;
 tests/test_ekf.py checks them against filterpy row by row). The eBot filter
 (`EbotEkf`) is one filterpy `ExtendedKalmanFilter` per robot, `EbotEkfBank`
 holds N of them. Both banks have the batch API of
-`bob_autonomy.simple_estimator` (update_gps, update_compass, update_encoders,
+`bob_autonomy.estimation.simple_estimator` (update_gps, update_compass, update_encoders,
 estimate -> PoseEstimate), which they replace. Frames: x east, y north (m);
 headings in rad from east, counter-clockwise, wrapped to (-pi, pi]; the body
 frame is x forward along the heading, y to the left.
@@ -147,7 +147,7 @@ Modules
 * `buoy_ekf_bank`: `BuoyEkfBank`, its code spread over three bases: `buoy_updates` (GPS, compass, gyro and the
   gated fusion), `buoy_process` (nozzle slew, prediction, drag balance) and `buoy_replay` (time, log, replay).
 * `buoy_ekf`: `BuoyEkf`, a bank of one. `ebot_ekf`: `EbotEkfParams`, `EbotEkf`, `EbotEkfBank`.
-`bob_autonomy.ekf` re-exports the public names (the former single module).
+`bob_autonomy.estimation.ekf` re-exports the public names (the former single module).
 """
 
 from bob_autonomy.estimation.buoy_ekf import BuoyEkf

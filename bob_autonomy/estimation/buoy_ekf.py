@@ -9,7 +9,7 @@ from numpy.typing import ArrayLike
 
 from bob_autonomy.estimation.buoy_ekf_bank import BuoyEkfBank
 from bob_autonomy.estimation.buoy_params import OUTCOMES, BuoyEkfParams
-from bob_autonomy.simple_estimator import FloatArray
+from bob_autonomy.estimation.simple_estimator import FloatArray
 
 
 class BuoyEkf:

@@ -21,7 +21,7 @@ from bob_autonomy.estimation.buoy_params import (
 from bob_autonomy.estimation.buoy_process import _BuoyProcess
 from bob_autonomy.estimation.buoy_replay import _BuoyReplay, _scalars, _vectors
 from bob_autonomy.estimation.kalman_rows import wrap_angle
-from bob_autonomy.simple_estimator import FloatArray, IntArray, PoseEstimate
+from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
 
 
 class BuoyEkfBank(_BuoyReplay, _BuoyProcess):

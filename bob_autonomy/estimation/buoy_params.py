@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bob_autonomy.velocity_control import BuoyModel
+from bob_autonomy.control.velocity_control import BuoyModel
 
 _NX = 10  # [x, y, vx, vy, heading, yaw_rate, drift_x, drift_y, bias_x, bias_y]
 _EYE2 = np.eye(2)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from bob_autonomy.control.velocity_control import BuoyModel
 from bob_autonomy.estimation.buoy_params import (
     _AS_MODEL_OUTCOME,
     _DRAG,
@@ -18,8 +19,7 @@ from bob_autonomy.estimation.buoy_params import (
 )
 from bob_autonomy.estimation.buoy_updates import _BuoyUpdates
 from bob_autonomy.estimation.kalman_rows import _healthy_rows, _transpose, kalman_predict_rows, wrap_angle
-from bob_autonomy.simple_estimator import FloatArray, IntArray
-from bob_autonomy.velocity_control import BuoyModel
+from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
 _TIME_EPS_S = 1e-12
 

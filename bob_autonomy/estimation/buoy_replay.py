@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bob_autonomy.estimation.buoy_params import _FIELDS, _LATE, _REJECTED, BuoyEkfParams
-from bob_autonomy.simple_estimator import FloatArray, IntArray
+from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
 
 def _vectors(values: ArrayLike | None, k: int) -> FloatArray | None:

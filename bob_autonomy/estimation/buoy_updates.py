@@ -21,7 +21,7 @@ from bob_autonomy.estimation.buoy_params import (
     BuoyEkfParams,
 )
 from bob_autonomy.estimation.kalman_rows import CHI2_999, _healthy_rows, kalman_update_rows, wrap_angle
-from bob_autonomy.simple_estimator import FloatArray, IntArray
+from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
 
 class _BuoyUpdates:

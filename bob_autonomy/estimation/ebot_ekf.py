@@ -10,8 +10,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bob_autonomy.estimation.kalman_rows import wrap_angle
+from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
 from bob_autonomy.estimation.timed_ekf import _finite, _TimedEkf
-from bob_autonomy.simple_estimator import FloatArray, IntArray, PoseEstimate
 
 
 @dataclass(frozen=True)

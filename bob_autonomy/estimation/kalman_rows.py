@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bob_autonomy.simple_estimator import FloatArray
+from bob_autonomy.estimation.simple_estimator import FloatArray
 
 # Chi-square 99.9 % quantiles by degrees of freedom (the innovation gate).
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467}

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from bob_autonomy.estimation.kalman_rows import CHI2_999, wrap_angle
-from bob_autonomy.simple_estimator import FloatArray
+from bob_autonomy.estimation.simple_estimator import FloatArray
 
 
 def _finite(*values: Any) -> bool:

@@ -28,9 +28,9 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from bob_autonomy.behavior_config import BehaviorChoice, build_dataclass
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.safe_read import UnreadableFileError, describe_parse_error, read_small_file
+from bob_autonomy.core.behavior_config import BehaviorChoice, build_dataclass
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.core.safe_read import UnreadableFileError, describe_parse_error, read_small_file
 from sitl.radio.channel import RadioChannel
 from sitl.radio.mesh_security import MeshSecuritySpec
 from sitl.vehicles.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec

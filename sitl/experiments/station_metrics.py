@@ -3,7 +3,7 @@
 A motorboat cannot hold a spot: with nothing to do it drifts, and when the drift
 is stronger than its hold threshold it points into it and turns back whenever it
 overshoots, so it orbits about its spot in circles of about its turning radius
-(`bob_autonomy.motorboat_control`). A swarm metric taken from the instantaneous
+(`bob_autonomy.control.motorboat_control`). A swarm metric taken from the instantaneous
 positions (e.g. the convex hull area of an aggregated swarm of 45 boats, ~1,250
 m2 for buoys 5 m apart) then measures the orbits as much as the formation: 45
 circles of 3 m radius on the hull's edge add about a perimeter times 3 m.

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from behaviors.base import Senses, Wish
-from bob_autonomy.agent import Agent
-from bob_autonomy.clock import ManualClock
-from bob_autonomy.interfaces import AgentState, Pose
+from bob_autonomy.core.agent import Agent
+from bob_autonomy.core.clock import ManualClock
+from bob_autonomy.core.interfaces import AgentState, Pose
 from sitl.fleets.fleet import LockstepFleet
 
 

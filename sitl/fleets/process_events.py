@@ -10,8 +10,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from behaviors.registry import behavior_class
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.supervisor import behavior_params
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.ground.supervisor import behavior_params
 from sitl.experiments.scenario import BehaviorChoice, Event, ScenarioError
 from sitl.fleets.fleet import LockstepFleet
 
@@ -22,7 +22,7 @@ def behavior_parameters(base: BehaviorChoice, new: BehaviorChoice, frame: LocalF
     """The MAVLink parameters (BOB_*) that make vessels configured with `base` run `new` (set-behavior events).
 
     A vessel builds its behaviour from the parameters over its configured choice
-    (`bob_autonomy.supervisor`): the parameters carry the behaviour's index and, for the BoB rule, p0, H,
+    (`bob_autonomy.ground.supervisor`): the parameters carry the behaviour's index and, for the BoB rule, p0, H,
     the speeds, the goal radius, the goal and the leader; every other parameter of the behaviour stays the
     configured one. So the parameters carried get their values from `new` (the behaviour's defaults where
     `new` leaves them out, as a lockstep run would), and `new` must agree with `base` on all the rest.

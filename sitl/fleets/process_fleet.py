@@ -69,11 +69,11 @@ from sitl.vehicles.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicles.vehicle_server import DEFAULT_BASE_PORT, VehicleServer
 from sitl.world.world import FloatArray
 
-DEFAULT_GCS_PORT = 14600  # where the autonomy processes' GCS links point (bob_autonomy.mission.MissionClient)
+DEFAULT_GCS_PORT = 14600  # where the autonomy processes' GCS links point (bob_autonomy.ground.mission.MissionClient)
 MAX_STEP_S = 0.1  # the physics steps at most this long, so the sensors keep their rates (GPS 5 Hz, IMU 10 Hz)
 LATE_FRACTION = 0.5  # a step that starts more than this fraction of a wall step after its due time is late
 
-# The BoB rule's parameters that MAVLink parameters carry (bob_autonomy.supervisor.behavior_params).
+# The BoB rule's parameters that MAVLink parameters carry (bob_autonomy.ground.supervisor.behavior_params).
 
 
 @dataclass(frozen=True)

@@ -92,7 +92,7 @@ class ProcessLifecycle:
         except OSError as error:
             raise ProcessFleetError(str(error)) from error
         if self.needs_gcs:  # a ground station only when the scenario's events need one (see _launch)
-            from bob_autonomy.mission import MissionClient
+            from bob_autonomy.ground.mission import MissionClient
 
             try:
                 self.mission = MissionClient(f"udpin:{o.host}:{o.gcs_port}")

@@ -1,7 +1,7 @@
 """What the autonomy processes of a process fleet reported when they stopped, read back from their logs.
 
 Each `bob-autonomy run` process ends its log with one line `vessel N stopped: {JSON}`
-(`bob_autonomy.vessel.Vessel.shutdown`): its `VesselStats` summary, in which the ground-station
+(`bob_autonomy.onboard.vessel.Vessel.shutdown`): its `VesselStats` summary, in which the ground-station
 component's rejected-input counters appear as `gcs_unsigned_rejected`, `gcs_bad_signature`,
 `gcs_replay_rejected`, `gcs_malformed` and `gcs_out_of_range`. A process that was killed or crashed
 writes no such line: it is listed as unreported rather than counted as zero.
@@ -14,7 +14,7 @@ import re
 from collections.abc import Mapping
 from pathlib import Path
 
-from bob_autonomy.gcs import GcsCounters
+from bob_autonomy.ground.gcs import GcsCounters
 
 __all__ = ["gcs_counters", "stopped_summary"]
 

@@ -34,9 +34,9 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from behaviors.base import MemorySpec, SwarmTable
-from bob_autonomy.mesh import packet_bytes
-from bob_autonomy.plausibility import JUMP, NON_FINITE, TOO_FAR
-from bob_autonomy.plausibility import REASONS as PLAUSIBILITY_REASONS
+from bob_autonomy.core.plausibility import JUMP, NON_FINITE, TOO_FAR
+from bob_autonomy.core.plausibility import REASONS as PLAUSIBILITY_REASONS
+from bob_autonomy.network.mesh import packet_bytes
 from sitl.radio.channel import RadioChannel
 from sitl.radio.medium_fast import FastPathRounds
 from sitl.radio.medium_general import GeneralPathRounds
@@ -82,7 +82,7 @@ class BroadcastMedium(FastPathRounds, GeneralPathRounds):
         self.security = security
         self.transmitters = n_agents + (security.m if security is not None else 0)  # agents, then intruders
         signed = security is not None and security.key is not None
-        # On-air size of one state packet (bob_autonomy.mesh), signed with the fleet key or not.
+        # On-air size of one state packet (bob_autonomy.network.mesh), signed with the fleet key or not.
         self.payload_bytes = packet_bytes([int(np.prod(s.shape)) for s in memory_fields.values()], signed)
         if channel is not None:
             channel.check_payload(self.payload_bytes)
@@ -101,7 +101,7 @@ class BroadcastMedium(FastPathRounds, GeneralPathRounds):
             memory={name: spec.empty(rows) for name, spec in memory_fields.items()},
         )
         self._memory_fill = {name: spec.empty(1)[0] for name, spec in memory_fields.items()}
-        # bob_autonomy.plausibility's codes (0, NON_FINITE, TOO_FAR, JUMP) as the security's reason codes.
+        # bob_autonomy.core.plausibility's codes (0, NON_FINITE, TOO_FAR, JUMP) as the security's reason codes.
         self._plausibility_code = np.array(
             [0, *(code_of(PLAUSIBILITY_REASONS[c]) for c in (NON_FINITE, TOO_FAR, JUMP))], dtype=np.int8
         )

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.plausibility import JUMP, TOO_FAR
+from bob_autonomy.core.plausibility import JUMP, TOO_FAR
 from sitl.radio.mesh_security import code_of
 
 FloatArray = NDArray[np.float64]
@@ -120,7 +120,7 @@ class FastPathRounds:
     def _implausible_fast(
         self, now: float, near: IntArray, round_of: NDArray[np.int64]
     ) -> tuple[IntArray, NDArray[np.int8]]:
-        """`bob_autonomy.plausibility.implausible` of the fast path's deliveries (candidates `near`, whose held
+        """`bob_autonomy.core.plausibility.implausible` of the fast path's deliveries (candidates `near`, whose held
         messages came in the rounds `round_of`): (index, verdict) of those that can fail, the same verdicts
         from the same float64 operations; the others pass.
 

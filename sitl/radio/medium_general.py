@@ -7,7 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from behaviors.base import wrap_angle
-from bob_autonomy.plausibility import implausible
+from bob_autonomy.core.plausibility import implausible
 from sitl.radio.mesh_security import code_of
 
 FloatArray = NDArray[np.float64]
@@ -60,7 +60,7 @@ class GeneralPathRounds:
         agents = np.flatnonzero(active)
         offset = self.table.position[agents][None, :, :] - sec.intruder_position[on][:, None, :]
         distance = np.hypot(offset[..., 0], offset[..., 1])  # (intruders on, active agents)
-        # An agent ignores packets carrying its own id, as bob_autonomy.mesh.LinkMesh does (never counted).
+        # An agent ignores packets carrying its own id, as bob_autonomy.network.mesh.LinkMesh does (never counted).
         own_id = self.table.ids[agents][None, :] == sec.intruder_claims[on][:, None]
         k, j = np.nonzero((distance <= sec.intruder_reach_m[on][:, None]) & ~own_id)
         hearer, intruder, distance = agents[j], on[k], distance[k, j]

@@ -3,7 +3,7 @@
 A scenario's `[network.security]` table (all optional):
 
     key = true                 # the fleet shares a key: every member signs its packets, every receiver
-                               # checks them (bob_autonomy.mesh_auth); lockstep runs draw the key from the seed
+                               # checks them (bob_autonomy.network.mesh_auth); lockstep runs draw the key from the seed
     window_s = 5.0             # freshness window of the timestamps, s of the mesh clock (here simulated time)
     plausibility = { max_speed_mps = 2.0, slack_m = 20.0, range_factor = 1.5 }   # or { enabled = false }
 
@@ -23,10 +23,10 @@ In the lockstep fleet (`sitl.radio.medium.BroadcastMedium`) an intruder transmit
 member hears it if it is within `reach_m` of the intruder, through the radio channel model (when the
 scenario has one) evaluated at the distance scaled by the channel's nominal range over `reach_m` (a
 stronger transmitter looks nearer); intruders are not counted as interferers. With a key, every packet of
-a round is really encoded and signed (`bob_autonomy.mesh.encode_state`) and its tag checked once
-(`bob_autonomy.mesh_auth.verify_tag`: the check is the same for every listener); replays and staleness are
+a round is really encoded and signed (`bob_autonomy.network.mesh.encode_state`) and its tag checked once
+(`bob_autonomy.network.mesh_auth.verify_tag`: the check is the same for every listener); replays and staleness are
 judged per listener from the timestamps, and plausibility per listener with
-`bob_autonomy.plausibility.implausible`, exactly the checks a vessel makes. Listeners use the sender's
+`bob_autonomy.core.plausibility.implausible`, exactly the checks a vessel makes. Listeners use the sender's
 float64 state, not the packet's float32 copy, so a keyed run differs from a keyless one only by what the
 checks refuse.
 """
@@ -47,11 +47,11 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from behaviors.base import SwarmTable
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import MAX_PACKET_BYTES, PacketError, encode_state, signed_part
-from bob_autonomy.mesh_auth import DEFAULT_WINDOW_S, REASONS, AuthError, MeshSigner, verify_tag
-from bob_autonomy.plausibility import REASONS as PLAUSIBILITY_REASONS
-from bob_autonomy.plausibility import PlausibilityLimits
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.core.plausibility import REASONS as PLAUSIBILITY_REASONS
+from bob_autonomy.core.plausibility import PlausibilityLimits
+from bob_autonomy.network.mesh import MAX_PACKET_BYTES, PacketError, encode_state, signed_part
+from bob_autonomy.network.mesh_auth import DEFAULT_WINDOW_S, REASONS, AuthError, MeshSigner, verify_tag
 
 __all__ = [
     "REJECT_REASONS",
@@ -80,7 +80,7 @@ class _Model(BaseModel):
 
 
 class PlausibilitySpec(_Model):
-    """Limits of `bob_autonomy.plausibility.PlausibilityLimits` (the radio range is the network's)."""
+    """Limits of `bob_autonomy.core.plausibility.PlausibilityLimits` (the radio range is the network's)."""
 
     enabled: bool = True
     max_speed_mps: PositiveFloat = 2.0

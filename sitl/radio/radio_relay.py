@@ -1,7 +1,7 @@
 """The simulated radio medium of a process fleet: one UDP port that every autonomy process sends its mesh packets to.
 
-Each datagram is one mesh packet (`bob_autonomy.mesh`). The relay tells the
-sender by the agent id inside the packet (`bob_autonomy.mesh.packet_agent_id`,
+Each datagram is one mesh packet (`bob_autonomy.network.mesh`). The relay tells the
+sender by the agent id inside the packet (`bob_autonomy.network.mesh.packet_agent_id`,
 agent = system id - 1) and binds that agent to the address of its first packet,
 for the relay's lifetime; a datagram that is not a valid packet (values in range
 included) is counted (`invalid`) and dropped. A later packet carrying an agent's
@@ -55,8 +55,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.interfaces import AgentState, Pose
-from bob_autonomy.mesh import PacketError, decode_state, encode_state, packet_agent_id
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.network.mesh import PacketError, decode_state, encode_state, packet_agent_id
 from sitl.radio.channel import RadioChannel
 from sitl.radio.mesh_security import IntruderSpec
 

@@ -9,7 +9,7 @@ owns (any ArduPilot Rover boat with FRAME_TYPE 0: SERVO1 ground steering,
 SERVO3 throttle), and it cannot move sideways: to go somewhere it must turn
 towards it, and it cannot stop in place against a drift without pointing into it.
 
-Why: the autonomy's motorboat controller (`bob_autonomy.motorboat_control`) must
+Why: the autonomy's motorboat controller (`bob_autonomy.control.motorboat_control`) must
 cope with what a real boat does: a top speed, a turning radius, a yaw rate
 that needs forward speed (rudder) or thrust (steerable drive), a hull that
 skids outwards in a turn, a drift it can only fight by pointing into it.

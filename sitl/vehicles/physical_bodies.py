@@ -16,10 +16,10 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.geodesy import LocalFrame
-from bob_autonomy.motorboat_control import MotorboatModel
-from bob_autonomy.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
-from bob_autonomy.simple_estimator import PoseEstimate
+from bob_autonomy.control.motorboat_control import MotorboatModel
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.estimation.simple_estimator import PoseEstimate
+from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
 from sitl.vehicles.bodies import BODY_SPECS, EBOT_SONAR_ANGLES_RAD, KinematicBodies
 from sitl.vehicles.bodies import EBOT as EBOT_KIND
 from sitl.vehicles.mavlink_vehicle import BUOY, EBOT, MOTORBOAT

@@ -59,7 +59,7 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.geodesy import LocalFrame
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
 FloatArray = NDArray[np.float64]

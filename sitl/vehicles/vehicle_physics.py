@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.geodesy import LocalFrame
+from bob_autonomy.core.geodesy import LocalFrame
 from firmware_bridge.readings import SensorReadings
 from sitl.vehicles.bodies import BUOY, EBOT, MOTORBOAT, KinematicBodies
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams, DiffDriveDynamics, DiffDriveParams

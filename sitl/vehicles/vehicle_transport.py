@@ -16,9 +16,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from bob_autonomy.autopilot import AutopilotSession
-from bob_autonomy.senses import EbotSenses
-from bob_autonomy.vehicle_link import BUOY, VehicleLink
+from bob_autonomy.onboard.autopilot import AutopilotSession
+from bob_autonomy.onboard.senses import EbotSenses
+from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink
 from firmware_bridge.commands import normalised_to_pwm, rc_override
 from firmware_bridge.readings import SensorReadings
 from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
@@ -56,7 +56,7 @@ class MavlinkTransport:
     wheel travel per encoder tick (eBots report wheel travel in metres, as ArduPilot does). clock: the
     simulated time (s) the vessels stamp readings with. streams, vehicle_params: as `SimulatedVehicle`'s
     streams and params. With ArduPilot's stream defaults (1 Hz) each vessel asks its vehicle for its messages
-    at the start, with the requests `bob-autonomy` sends (`bob_autonomy.autopilot.AutopilotSession`).
+    at the start, with the requests `bob-autonomy` sends (`bob_autonomy.onboard.autopilot.AutopilotSession`).
     """
 
     def __init__(

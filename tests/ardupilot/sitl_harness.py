@@ -184,10 +184,10 @@ class RoverSitl:
 
 
 def drive(sitl: RoverSitl, config, seconds: float):
-    """Run a `bob_autonomy.vessel.Vessel` with `config` for `seconds` after its start-up; every 0.5 s record
+    """Run a `bob_autonomy.onboard.vessel.Vessel` with `config` for `seconds` after its start-up; every 0.5 s record
     (wall s since start, the autopilot's own position as east/north m, its heading deg) and the distance of
     the vessel's estimate from it (m). Returns (track, estimate errors, the vessel)."""
-    from bob_autonomy.vessel import Vessel
+    from bob_autonomy.onboard.vessel import Vessel
 
     vessel = Vessel(config)
     thread = threading.Thread(target=vessel.run, kwargs={"duration_s": seconds}, daemon=True)

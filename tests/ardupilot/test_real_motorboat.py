@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from sitl_harness import HOME, RoverSitl, drive, sitl_binary
 
-from bob_autonomy.behavior_config import BehaviorChoice
-from bob_autonomy.vessel import Vessel, VesselConfig
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 
 BINARY = sitl_binary()
 pytestmark = [

@@ -1,0 +1,549 @@
+"""What the autonomy knows of its ArduPilot autopilot, and how it talks to it.
+
+Transport-free: `AutopilotSession.handle(msg)` takes every MAVLink message the
+autopilot (the vehicle's system, component 1) sends; its methods return bytes
+to send. `bob_autonomy.onboard.autopilot_start` drives the start-up over a real link.
+
+Facts from ArduPilot's source behind each choice:
+- RC overrides are taken only from the system id in MAV_GCS_SYSID (SYSID_MYGCS
+  before 4.7), whatever their target (libraries/GCS_MAVLink/GCS_Common.cpp
+  `handle_rc_channels_override`), and lapse after RC_OVERRIDE_TIME s; 0 disables
+  them, -1 never lets them lapse (libraries/RC_Channel/RC_Channels_VarInfo.h).
+- Steering is RCMAP_ROLL's channel, throttle RCMAP_THROTTLE's, lateral
+  RCMAP_YAW's (Rover/radio.cpp `set_control_channels`); lateral moves only omni
+  frames, FRAME_TYPE 1-4 (libraries/AR_Motors/AP_MotorsUGV.h `is_omni`).
+- With PILOT_STEER_TYPE 0 (default) or 2 the steering input is negated while
+  the throttle is negative (Rover/mode.cpp `get_pilot_input`); 1 (two paddles)
+  reads the channels as paddles.
+- Top speed: SPEED_MAX, or when 0 CRUISE_SPEED / CRUISE_THROTTLE % (Rover/Parameters.cpp).
+- Turning radius: TURN_RADIUS, m (Rover/Parameters.cpp, 0.9 m by default), what a motorboat's controller plans with.
+- Frames and kinds: a buoy (thrust in any direction: throttle + lateral) needs an omni frame; a motorboat
+  (steering + throttle) drives any frame, omni ones included (they take steering and throttle too); an eBot is
+  driven as a skid-steer rover (docs/ardupilot.md, "Frames: omni, motorboat, skid-steer").
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from firmware_bridge.autopilot_requests import (
+    NO_INTERVAL,
+    STREAM_OF_MESSAGE,
+    param_request_read,
+    request_data_stream,
+    request_message,
+    set_message_interval,
+)
+from firmware_bridge.commands import ROVER_MODES, Encoder, rc_override
+from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap
+
+BUOY, EBOT, MOTORBOAT = "buoy", "ebot", "motorboat"
+OMNI_FRAME_TYPES = {1: "omni3", 2: "omniX", 3: "omniPlus", 4: "omni3mecanum"}
+FRAME_CLASSES = {0: "undefined", 1: "rover", 2: "boat", 3: "balancebot"}
+FORCE_ARM_MAGIC = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2 that skips the checks (GCS_Common.cpp)
+
+CORE_PARAMS = (
+    "FRAME_CLASS",
+    "FRAME_TYPE",
+    "RCMAP_ROLL",
+    "RCMAP_THROTTLE",
+    "RCMAP_YAW",
+    "MAV_GCS_SYSID",
+    "SYSID_MYGCS",
+    "RC_OVERRIDE_TIME",
+    "FS_ACTION",
+    "FS_TIMEOUT",
+    "FS_GCS_ENABLE",
+    "FS_THR_ENABLE",
+    "PILOT_STEER_TYPE",
+    "CRUISE_SPEED",
+    "CRUISE_THROTTLE",
+    "SPEED_MAX",
+    "MOT_VEC_ANGLEMAX",
+    "WENC_TYPE",
+    "TURN_RADIUS",
+)
+RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
+
+# Messages the estimators need and the rates asked for (Hz), with the slowest rate still usable. ArduPilot
+# refuses intervals under 0.8 of its main loop period (GCS_Common.cpp `cap_message_interval`; Rover's loop runs
+# at 50 Hz), so nothing here is asked faster than 25 Hz.
+_HOUSEKEEPING = {
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: (1.0, 0.2),
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: (2.0, 0.0),
+    mavlink.MAVLINK_MSG_ID_RC_CHANNELS: (4.0, 0.0),
+}
+# Buoys and motorboats are estimated alike: GPS, compass (the autopilot's attitude) and IMU.
+_AFLOAT = {
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 2.0),
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
+    mavlink.MAVLINK_MSG_ID_SCALED_IMU: (25.0, 5.0),
+    **_HOUSEKEEPING,
+}
+STREAMS_HZ = {
+    BUOY: _AFLOAT,
+    MOTORBOAT: _AFLOAT,
+    EBOT: {
+        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: (10.0, 0.0),
+        mavlink.MAVLINK_MSG_ID_ATTITUDE: (20.0, 5.0),
+        mavlink.MAVLINK_MSG_ID_WHEEL_DISTANCE: (20.0, 0.0),
+        mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: (20.0, 0.0),
+        **_HOUSEKEEPING,
+    },
+}
+
+
+RECOVERED_FACTOR = 1.25  # a slow stream counts as recovered at this multiple of its slowest usable rate
+
+
+def message_name(message_id: int) -> str:
+    entry = mavlink.mavlink_map.get(message_id)
+    return entry.msgname if entry is not None else f"message {message_id}"
+
+
+def _int(values: dict[str, float], name: str, default: int) -> int:
+    v = values.get(name)
+    return round(v) if v is not None and math.isfinite(v) else default
+
+
+@dataclass(frozen=True)
+class AutopilotProfile:
+    """The autopilot configuration the autonomy adapts to (read from its parameters; defaults = ArduPilot's)."""
+
+    values: dict[str, float] = field(default_factory=dict)
+
+    def get(self, name: str) -> float | None:
+        return self.values.get(name)
+
+    @property
+    def known(self) -> bool:
+        """True when the frame parameters were read (an autopilot without the parameter protocol is not)."""
+        return "FRAME_CLASS" in self.values and "FRAME_TYPE" in self.values
+
+    @property
+    def frame_class(self) -> int:
+        return _int(self.values, "FRAME_CLASS", 1)
+
+    @property
+    def frame_type(self) -> int:
+        return _int(self.values, "FRAME_TYPE", 0)
+
+    @property
+    def lateral_capable(self) -> bool:
+        return self.frame_type in OMNI_FRAME_TYPES
+
+    @property
+    def frame_name(self) -> str:
+        kind = OMNI_FRAME_TYPES.get(self.frame_type, "steering + throttle")
+        frame_class = FRAME_CLASSES.get(self.frame_class, "?")
+        return f"FRAME_CLASS={self.frame_class} ({frame_class}), FRAME_TYPE={self.frame_type} ({kind})"
+
+    @property
+    def gcs_system_id(self) -> int:
+        """The system id RC overrides must come from: MAV_GCS_SYSID (SYSID_MYGCS on older firmware), else 255."""
+        for name in ("MAV_GCS_SYSID", "SYSID_MYGCS"):
+            if name in self.values:
+                return _int(self.values, name, 255)
+        return 255
+
+    @property
+    def override_timeout_s(self) -> float:
+        v = self.values.get("RC_OVERRIDE_TIME")
+        return 3.0 if v is None or not math.isfinite(v) else float(v)
+
+    @property
+    def steering_flips_in_reverse(self) -> bool:
+        return _int(self.values, "PILOT_STEER_TYPE", 0) in (0, 2)
+
+    @property
+    def top_speed_mps(self) -> float | None:
+        """The speed at full throttle the autopilot is configured for, m/s (None when it says nothing)."""
+        speed_max = self.values.get("SPEED_MAX", 0.0)
+        if speed_max is not None and math.isfinite(speed_max) and speed_max > 0:
+            return float(speed_max)
+        cruise, throttle = self.values.get("CRUISE_SPEED"), self.values.get("CRUISE_THROTTLE")
+        if cruise is None or throttle is None or not (math.isfinite(cruise) and math.isfinite(throttle)):
+            return None
+        if cruise <= 0 or throttle <= 0:
+            return None
+        return float(cruise) * 100.0 / float(throttle)
+
+    @property
+    def turn_radius_m(self) -> float | None:
+        """TURN_RADIUS, m: the turning radius the autopilot is configured with (None when not read or not > 0)."""
+        value = self.values.get("TURN_RADIUS")
+        return float(value) if value is not None and math.isfinite(value) and value > 0 else None
+
+    @property
+    def rc_map(self) -> RcMap:
+        steering = _int(self.values, "RCMAP_ROLL", 1)
+        throttle = _int(self.values, "RCMAP_THROTTLE", 3)
+        lateral = _int(self.values, "RCMAP_YAW", 4)
+        ranges = []
+        for channel in sorted({steering, throttle, lateral}):
+            p = f"RC{channel}_"
+            ranges.append(
+                (
+                    channel,
+                    RcChannelRange(
+                        min_us=_int(self.values, p + "MIN", 1100),
+                        trim_us=_int(self.values, p + "TRIM", 1500),
+                        max_us=_int(self.values, p + "MAX", 1900),
+                        dead_zone_us=_int(self.values, p + "DZ", DEFAULT_DEAD_ZONE_US),
+                        reversed=bool(_int(self.values, p + "REVERSED", 0)),
+                    ),
+                )
+            )
+        return RcMap(steering, throttle, lateral, tuple(ranges))
+
+    def problems(self, kind: str) -> list[str]:
+        """What makes this autopilot impossible to drive as `kind`, each with what to change."""
+        found = []
+        if kind == BUOY and self.known and not self.lateral_capable:
+            found.append(
+                f"a buoy needs thrust in any direction, but this autopilot is {self.frame_name}: it cannot move "
+                "sideways and the lateral channel would be ignored. Run it as a motorboat (--kind motorboat: "
+                "steering + throttle, it turns towards where it goes), or set FRAME_TYPE to the omni frame the "
+                "vessel really has"
+            )
+        timeout = self.override_timeout_s
+        if timeout == 0:
+            found.append("RC_OVERRIDE_TIME is 0, so the autopilot ignores RC overrides; set it to 1-3 s")
+        if _int(self.values, "PILOT_STEER_TYPE", 0) == 1:
+            found.append("PILOT_STEER_TYPE is 1 (two paddles); set it to 0 (default) or 3 for RC overrides")
+        why = self.rc_map.problem()
+        if why is not None:
+            found.append(f"RC map: {why}; fix the RCMAP_* / RCn_* parameters")
+        return found
+
+    def warnings(self, control_period_s: float) -> list[str]:
+        """What is drivable but unsafe or surprising, each with what to change."""
+        found = []
+        timeout = self.override_timeout_s
+        if timeout < 0:
+            found.append(
+                "RC_OVERRIDE_TIME is -1: overrides never lapse, so if this computer dies the last command runs on; "
+                "set it to 1-3 s"
+            )
+        elif 0 < timeout < 3 * control_period_s:
+            found.append(f"RC_OVERRIDE_TIME {timeout:g} s is under three control periods; overrides may lapse")
+        if _int(self.values, "FS_GCS_ENABLE", 0) == 0 and self.known:
+            found.append(
+                f"FS_GCS_ENABLE is 0: if this computer dies the vehicle stops only when RC overrides lapse after "
+                f"{timeout:g} s; set FS_GCS_ENABLE=1 and FS_ACTION=2 (Hold) for a failsafe on lost heartbeats"
+            )
+        return found
+
+
+@dataclass
+class RateMeter:
+    """Arrival rates of messages over a sliding window of `window_s` (clock seconds)."""
+
+    window_s: float = 5.0
+    arrivals: dict[int, deque] = field(default_factory=dict)
+
+    def note(self, message_id: int, t_s: float) -> None:
+        q = self.arrivals.setdefault(message_id, deque())
+        q.append(t_s)
+        while q and q[0] <= t_s - self.window_s:
+            q.popleft()
+
+    def rate_hz(self, message_id: int, now_s: float) -> float:
+        q = self.arrivals.get(message_id)
+        if not q:
+            return 0.0
+        while q and q[0] <= now_s - self.window_s:
+            q.popleft()
+        return len(q) / self.window_s
+
+
+class AutopilotSession:
+    """The autonomy's conversation with one ArduPilot autopilot (system `target_system`, component 1).
+
+    kind: BUOY, MOTORBOAT or EBOT (what the estimators need and how commands map). encoder: our source ids (its
+    system id is made the autopilot's MAV_GCS_SYSID once that is known, so that overrides are taken). clock: s.
+    """
+
+    def __init__(
+        self,
+        target_system: int,
+        kind: str,
+        encoder: Encoder,
+        clock: Callable[[], float],
+        *,
+        estimator: str = "ekf",
+    ) -> None:
+        if kind not in STREAMS_HZ:
+            raise ValueError(f"unknown vehicle kind {kind!r}; choose {', '.join(STREAMS_HZ)}")
+        self.target_system, self.kind, self.encoder, self.clock = target_system, kind, encoder, clock
+        self.streams = dict(STREAMS_HZ[kind])
+        if estimator != "ekf":
+            self.streams.pop(mavlink.MAVLINK_MSG_ID_SCALED_IMU, None)
+        self.profile = AutopilotProfile()
+        self.params: dict[str, float] = {}
+        self.acks: deque = deque(maxlen=64)  # (t, command, result)
+        self.texts: deque = deque(maxlen=32)  # (t, severity, text)
+        self.rates = RateMeter()
+        self.custom_mode: int | None = None
+        self.armed: bool | None = None
+        self.fix_type = 0
+        self.last_param_t = -math.inf  # when the last PARAM_VALUE came
+        self.prearm_ok: bool | None = None
+        self.heading_rad = math.nan  # the autopilot's own attitude: heading (from east, CCW) and its rate (rad/s)
+        self.yaw_rate_radps = math.nan
+        self.attitude_t = -math.inf  # SYS_STATUS's pre-arm check bit, where the autopilot reports it
+        self.satellites = 0
+        self.home: tuple[float, float] | None = None
+        self.version: object | None = None
+        self.rc_in: dict[int, int] = {}
+        self.rc_in_t: float | None = None
+        self._slow_warned: set[int] = set()
+        self._streams_requested_at: float | None = None
+        self.sent: deque = deque(maxlen=64)  # (t, {channel: PWM}) of the overrides we sent
+
+    # -- what the autopilot says ---------------------------------------------------------------------
+
+    def is_autopilot(self, msg) -> bool:
+        return msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1
+
+    def handle(self, msg) -> None:
+        """Take one decoded message; only the autopilot's own (system, component 1) count."""
+        if not self.is_autopilot(msg):
+            return
+        now = float(self.clock())
+        self.rates.note(msg.get_msgId(), now)
+        name = msg.get_type()
+        try:
+            if name == "HEARTBEAT":
+                self.custom_mode = int(msg.custom_mode)
+                self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            elif name == "PARAM_VALUE":
+                value = float(msg.param_value)
+                self.last_param_t = now
+                if math.isfinite(value):
+                    pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
+                    self.params[pid.rstrip("\x00")] = value
+            elif name == "COMMAND_ACK":
+                self.acks.append((now, int(msg.command), int(msg.result)))
+            elif name == "STATUSTEXT":
+                text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
+                self.texts.append((now, int(msg.severity), text.rstrip("\x00")))
+            elif name == "ATTITUDE":
+                yaw, rate = float(msg.yaw), float(msg.yawspeed)
+                if math.isfinite(yaw) and math.isfinite(rate):
+                    # ours: heading from east, counter-clockwise; MAVLink: yaw from north, clockwise
+                    self.heading_rad, self.yaw_rate_radps, self.attitude_t = math.pi / 2 - yaw, -rate, now
+            elif name == "SYS_STATUS":
+                bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+                if msg.onboard_control_sensors_present & bit and msg.onboard_control_sensors_enabled & bit:
+                    self.prearm_ok = bool(msg.onboard_control_sensors_health & bit)
+            elif name == "GPS_RAW_INT":
+                self.fix_type, self.satellites = int(msg.fix_type), int(msg.satellites_visible)
+            elif name == "HOME_POSITION":
+                self.home = (msg.latitude * 1e-7, msg.longitude * 1e-7)
+            elif name == "AUTOPILOT_VERSION":
+                self.version = msg
+            elif name == "RC_CHANNELS":
+                self.rc_in = {c: int(getattr(msg, f"chan{c}_raw")) for c in range(1, 9)}
+                self.rc_in_t = now
+        except (AttributeError, TypeError, ValueError, UnicodeError):
+            pass  # a message we cannot read is the decoder's business; it never stops the session
+
+    def take_ack(self, command: int, since_s: float) -> int | None:
+        """The result of the newest COMMAND_ACK for `command` heard since `since_s`, if any."""
+        for t, cmd, result in reversed(self.acks):
+            if cmd == command and t >= since_s:
+                return result
+        return None
+
+    def acks_since(self, command: int, since_s: float) -> list[int]:
+        """The results of every COMMAND_ACK for `command` heard since `since_s`, oldest first."""
+        return [result for t, cmd, result in self.acks if cmd == command and t >= since_s]
+
+    def texts_since(self, since_s: float, prefixes: Iterable[str] = ("PreArm", "Arm")) -> list[str]:
+        """The autopilot's STATUSTEXTs since `since_s` that start with one of `prefixes` (its arming reasons)."""
+        wanted = tuple(prefixes)
+        seen: list[str] = []
+        for t, _severity, text in self.texts:
+            if t >= since_s and text.startswith(wanted) and text not in seen:
+                seen.append(text)
+        return seen
+
+    # -- requests --------------------------------------------------------------------------------------
+
+    def stream_requests(self) -> list[bytes]:
+        """SET_MESSAGE_INTERVAL for every message the estimators and the watch need (REQUEST_DATA_STREAM of its
+        group for a message ArduPilot cannot schedule by id)."""
+        self._streams_requested_at = float(self.clock())
+        frames = []
+        for message, (hz, _) in self.streams.items():
+            if message in NO_INTERVAL:
+                stream = STREAM_OF_MESSAGE[message]
+                frames.append(request_data_stream(self.encoder, self.target_system, stream, math.ceil(hz)))
+            else:
+                frames.append(set_message_interval(self.encoder, self.target_system, message, hz))
+        return frames
+
+    @property
+    def interval_requests(self) -> int:
+        """How many of `stream_requests` are SET_MESSAGE_INTERVAL (each answered by a COMMAND_ACK)."""
+        return sum(1 for m in self.streams if m not in NO_INTERVAL)
+
+    def stream_fallback_requests(self) -> list[bytes]:
+        """REQUEST_DATA_STREAM for the groups holding those messages (firmware without SET_MESSAGE_INTERVAL)."""
+        rates: dict[int, float] = {}
+        for message, (hz, _) in self.streams.items():
+            stream = STREAM_OF_MESSAGE.get(message)
+            if stream is not None:
+                rates[stream] = max(rates.get(stream, 0.0), hz)
+        return [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
+
+    def lagging_stream_requests(self, now_s: float, window_s: float) -> list[bytes]:
+        """REQUEST_DATA_STREAM for the groups of requested messages that are as good as absent over the last
+        `window_s` (under a quarter of the asked rate and under 2 Hz: their SET_MESSAGE_INTERVAL was refused or
+        ignored, not merely limited by a slower sensor); each group asked at the highest rate wanted of it."""
+        rates: dict[int, float] = {}
+        for message, (hz, _) in self.streams.items():
+            q = self.rates.arrivals.get(message, ())
+            got = sum(1 for t in q if t > now_s - window_s) / window_s
+            stream = STREAM_OF_MESSAGE.get(message)
+            if got < min(0.25 * hz, 2.0) and stream is not None:
+                rates[stream] = max(rates.get(stream, 0.0), hz)
+        return [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
+
+    def info_requests(self) -> list[bytes]:
+        return [
+            request_message(self.encoder, self.target_system, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION),
+            request_message(self.encoder, self.target_system, mavlink.MAVLINK_MSG_ID_HOME_POSITION),
+        ]
+
+    def param_requests(self, names: Iterable[str]) -> list[bytes]:
+        return [param_request_read(self.encoder, self.target_system, n) for n in names if n not in self.params]
+
+    def rc_param_names(self) -> list[str]:
+        """RCn_* calibration parameters of the channels the RCMAP parameters read so far name."""
+        profile = AutopilotProfile(dict(self.params))
+        m = profile.rc_map
+        return [f"RC{c}_{f}" for c in sorted({m.steering, m.throttle, m.lateral}) for f in RC_FIELDS]
+
+    def learn(self) -> AutopilotProfile:
+        """Adopt the parameters read so far; our encoder sends as the autopilot's GCS system id from now on."""
+        self.profile = AutopilotProfile(dict(self.params))
+        self.encoder.mav.srcSystem = self.profile.gcs_system_id
+        return self.profile
+
+    # -- commands --------------------------------------------------------------------------------------
+
+    def override(self, steering: float, throttle: float, lateral: float | None = None) -> bytes:
+        """RC_CHANNELS_OVERRIDE for normalised steering (positive = turn right), throttle (positive = forward) and
+        lateral (positive = right), each in [-1, 1] (non-finite -> neutral), through the autopilot's RC map and
+        calibration; the steering sign is flipped in reverse where the autopilot flips it back."""
+        steer = float(steering) if math.isfinite(steering) else 0.0
+        thr = float(throttle) if math.isfinite(throttle) else 0.0
+        if self.profile.steering_flips_in_reverse and thr < 0:
+            steer = -steer
+        lat = None if lateral is None or not math.isfinite(lateral) else float(lateral)
+        if not self.profile.lateral_capable and self.profile.known:
+            lat = None
+        channels = self.profile.rc_map.channels_for(steer, thr, lat)
+        self.sent.append((float(self.clock()), channels))
+        return rc_override(channels, self.target_system, mavlink.MAV_COMP_ID_AUTOPILOT1, encoder=self.encoder)
+
+    def release(self) -> bytes:
+        """RC_CHANNELS_OVERRIDE handing channels 1-8 back to the RC receiver (0 = release)."""
+        channels = dict.fromkeys(range(1, 9), 0)
+        return rc_override(channels, self.target_system, mavlink.MAV_COMP_ID_AUTOPILOT1, encoder=self.encoder)
+
+    def arm(self, arm: bool = True, *, force: bool = False) -> bytes:
+        p2 = FORCE_ARM_MAGIC if force else 0.0
+        message = self.encoder.mav.command_long_encode(
+            self.target_system,
+            mavlink.MAV_COMP_ID_AUTOPILOT1,
+            mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+            0,
+            1.0 if arm else 0.0,
+            p2,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
+        return self.encoder.pack(message)
+
+    def set_mode(self, mode: str) -> bytes:
+        message = self.encoder.mav.command_long_encode(
+            self.target_system,
+            mavlink.MAV_COMP_ID_AUTOPILOT1,
+            mavlink.MAV_CMD_DO_SET_MODE,
+            0,
+            float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED),
+            float(ROVER_MODES[mode]),
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
+        return self.encoder.pack(message)
+
+    # -- watching ----------------------------------------------------------------------------------------
+
+    def ready(self) -> str | None:
+        """None when the autopilot can be armed for us (3D GPS fix and, where SYS_STATUS reports it, its pre-arm
+        checks passing: libraries/GCS_MAVLink/GCS.cpp sets MAV_SYS_STATUS_PREARM_CHECK); else what it waits for."""
+        if self.custom_mode is None:
+            return "no HEARTBEAT from the autopilot yet"
+        if self.fix_type < 3:
+            return f"waiting for a 3D GPS fix (fix type {self.fix_type}, {self.satellites} satellites)"
+        if self.prearm_ok is False:
+            recent = [text for _t, _s, text in list(self.texts)[-8:] if text.startswith(("PreArm", "Arm"))]
+            return "its pre-arm checks are not passing yet" + (f" ({recent[-1]})" if recent else "")
+        return None
+
+    def slow_streams(self, now_s: float, grace_s: float = 5.0) -> list[str]:
+        """New warnings for messages the estimators need that arrive slower than usable, `grace_s` after the
+        streams were requested: each said once until it has recovered to 1.25 times the slowest usable rate (so a
+        rate hovering at the limit is reported once, not every few seconds)."""
+        if self._streams_requested_at is None or now_s - self._streams_requested_at < grace_s:
+            return []
+        found = []
+        for message, (wanted, slowest) in self.streams.items():
+            if slowest <= 0:
+                continue
+            rate = self.rates.rate_hz(message, now_s)
+            if rate < slowest and message not in self._slow_warned:
+                self._slow_warned.add(message)
+                found.append(
+                    f"{message_name(message)} arrives at {rate:.1f} Hz (asked {wanted:g} Hz, the estimator needs at "
+                    f"least {slowest:g} Hz): check the autopilot's SRn_* rates and the link's bandwidth"
+                )
+            elif rate >= RECOVERED_FACTOR * slowest:
+                self._slow_warned.discard(message)
+        return found
+
+    def stream_rates(self, now_s: float) -> dict[str, float]:
+        """Measured rate (Hz) of each requested message."""
+        return {message_name(m): round(self.rates.rate_hz(m, now_s), 2) for m in self.streams}
+
+    def mode_name(self) -> str:
+        for name, number in ROVER_MODES.items():
+            if number == self.custom_mode:
+                return name
+        return f"mode {self.custom_mode}"
+
+    def ignoring_overrides(self, now_s: float, window_s: float = 1.5) -> bool:
+        """True when the autopilot's latest RC_CHANNELS (younger than the window) matches none of the overrides we
+        sent in the last `window_s` (within 10 us on every channel we set): it is not taking our overrides (a
+        wrong MAV_GCS_SYSID, RC_OVERRIDE_TIME = 0, or a link that drops our frames)."""
+        if self.rc_in_t is None or now_s - self.rc_in_t > window_s:
+            return False
+        recent = [channels for t, channels in self.sent if now_s - t <= window_s]
+        if not recent:
+            return False
+        return not any(all(abs(self.rc_in.get(c, pwm) - pwm) <= 10 for c, pwm in ch.items()) for ch in recent)

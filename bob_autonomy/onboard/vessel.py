@@ -1,0 +1,466 @@
+"""The on-vessel autonomy process: one agent driving one MAVLink vehicle, talking to its swarm over a mesh.
+
+Each control period (dt_s): drain the vehicle link (telemetry decoded by
+firmware_bridge, fused by the estimator) and the ground-station link (the
+MAVLink component of `bob_autonomy.ground.gcs`: parameters, commands, missions),
+step the agent (listen to the mesh, run the behaviour the parameters select on
+the estimate, broadcast the state at the mesh rate), pass the wish through the
+supervisor (start/stop, geofence, ground-station loss), turn it into an
+actuator command (MPC or proportional) and send it as RC_CHANNELS_OVERRIDE. A
+HEARTBEAT goes to the vehicle every second. If the vehicle goes silent the
+vessel commands neutral and raises an alarm (logged, counted, STATUSTEXT); one
+bad message never stops the loop. On stop the thrusters or wheels are left at
+zero. Every MAVLink frame in or out can be logged to a .tlog.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import statistics
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from behaviors.base import Senses
+from bob_autonomy.control.motorboat_control import MotorboatModel
+from bob_autonomy.control.velocity_control import BuoyModel
+from bob_autonomy.core.agent import Agent
+from bob_autonomy.core.behavior_config import BehaviorChoice
+from bob_autonomy.core.clock import ScaledWallClock
+from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.ground.gcs import GcsComponent, load_signing_key
+from bob_autonomy.ground.params import ParameterStore
+from bob_autonomy.ground.supervisor import Supervisor, behavior_params
+from bob_autonomy.network.mesh import LinkMesh
+from bob_autonomy.onboard.autopilot import MOTORBOAT, AutopilotSession
+from bob_autonomy.onboard.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
+from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline
+from bob_autonomy.onboard.senses import EbotSenses
+from bob_autonomy.onboard.vehicle_link import BUOY, EBOT, VehicleLink
+from bob_autonomy.onboard.vessel_driving import AutopilotDriving
+from bob_autonomy.onboard.vessel_links import VesselLinks
+from bob_autonomy.onboard.vessel_pipelines import buoy_pipeline, ebot_pipeline, motorboat_pipeline
+from firmware_bridge.commands import heartbeat
+from firmware_bridge.links import Link, open_link
+from firmware_bridge.tlog import TlogWriter
+
+logger = logging.getLogger(__name__)
+
+
+class VehicleError(RuntimeError):
+    """The vehicle cannot be driven (never answered, refused to arm); the message says which and why."""
+
+
+ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
+STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
+
+
+@dataclass(frozen=True)
+class EbotConfig:
+    """What the autonomy knows of an eBot: wheel base m, top wheel speed m/s, encoder travel per tick m, and the
+    bearing of each sonar from the forward axis (deg, counter-clockwise)."""
+
+    wheel_base_m: float = 0.1
+    max_wheel_speed_mps: float = 0.2
+    metres_per_tick: float = 2.0 * math.pi * 0.03 / 360
+    sonar_angles_deg: tuple[float, ...] = (0.0, 60.0, 120.0, 180.0, -120.0, -60.0)  # by DISTANCE_SENSOR id
+
+
+@dataclass(frozen=True)
+class VesselConfig:
+    """Everything one autonomy process needs (units: m, s, rad, deg for latitude and longitude)."""
+
+    vehicle: str
+    system_id: int
+    behavior: BehaviorChoice
+    origin: tuple[float, float]
+    kind: str = BUOY
+    mesh: str | None = None
+    memory_fields: tuple[str, ...] = ()
+    time_scale: float = 1.0
+    dt_s: float = 0.1
+    broadcast_period_s: float = 0.1
+    neighbor_expiry_s: float = 1.0
+    estimator: str = "ekf"
+    controller: str = "mpc"
+    start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_thrust_fraction: float = 1.0
+    heartbeat_timeout_s: float = 3.0
+    arm_timeout_s: float = 10.0
+    baud: int = 115200
+    ebot: EbotConfig = field(default_factory=EbotConfig)
+    gcs: str | None = None
+    params_file: str | None = None
+    signing_key_file: str | None = None
+    mesh_key_file: str | None = None  # the swarm's fleet key (bob_autonomy.network.mesh_auth; may be the signing key)
+    autostart: bool = True
+    tlog: str | None = None
+    autopilot: StartOptions = field(default_factory=StartOptions)
+    on_stop: str = "neutral"
+    top_speed_mps: float | None = None
+
+    @property
+    def agent_id(self) -> int:
+        return self.system_id - 1
+
+
+class ThrottledMesh:
+    """A mesh that sends at most one state per `period_s` (the radio's budget); receiving is unthrottled."""
+
+    def __init__(self, inner: LinkMesh, period_s: float) -> None:
+        self.inner, self.period_s = inner, period_s
+        self._next_s = -math.inf
+
+    def broadcast(self, state: AgentState) -> None:
+        if state.t >= self._next_s:
+            self._next_s = state.t + self.period_s - 1e-9
+            self.inner.broadcast(state)
+
+    def receive(self) -> list[AgentState]:
+        return self.inner.receive()
+
+
+class SilentMesh:
+    """No radio: the agent acts alone."""
+
+    def broadcast(self, state: AgentState) -> None:
+        pass
+
+    def receive(self) -> list[AgentState]:
+        return []
+
+
+class MavlinkBody:
+    """The Body of an agent whose vehicle is reached over MAVLink: pose from the vessel's own estimator, senses
+    from the decoded range and light telemetry (eBots; buoys sense neither)."""
+
+    def __init__(
+        self, pipeline: BuoyPipeline | EbotPipeline, clock: ScaledWallClock, sensing: EbotSenses | None = None
+    ) -> None:
+        self.pipeline, self.clock, self.sensing = pipeline, clock, sensing
+        self.wish_velocity = np.zeros(2)
+        self.wish_heading = math.nan
+
+    def pose(self) -> Pose:
+        e = self.pipeline.estimate(self.clock.now())
+        return Pose(*e.position[0], float(e.heading[0]), *e.velocity[0])
+
+    def senses(self) -> Senses:
+        if self.sensing is None:
+            return Senses(obstacles=np.full((1, 0, 2), np.nan), light=np.full((1, 2), np.nan))
+        now = self.clock.now()
+        return self.sensing.senses(float(self.pipeline.estimate(now).heading[0]), now)
+
+    def command(self, velocity_mps: np.ndarray, heading_rad: float) -> None:
+        self.wish_velocity = np.nan_to_num(np.asarray(velocity_mps, dtype=float).reshape(2))
+        self.wish_heading = float(heading_rad)
+
+
+@dataclass
+class VesselStats:
+    """Counters and timings of one autonomy process (latencies in wall seconds)."""
+
+    ticks: int = 0
+    commands: int = 0
+    readings: int = 0
+    link_errors: int = 0
+    reading_errors: int = 0
+    step_errors: int = 0
+    silent_alarms: int = 0
+    routed_to_gcs: int = 0
+    routed_to_vehicle: int = 0
+    estimator_resets: int = 0
+    mpc_fallbacks: int = 0  # control steps whose MPC fell back to the proportional command (bob_autonomy.control.mpc)
+    compute_latency_s: list[float] = field(default_factory=list)
+    telemetry_to_command_s: list[float] = field(default_factory=list)
+    gcs: dict[str, int] = field(default_factory=dict)  # the GCS component's rejected-input counters, at the end
+
+    def summary(self) -> dict[str, float]:
+        out: dict[str, float] = {k: v for k, v in vars(self).items() if isinstance(v, int)}
+        out.update({f"gcs_{name}": value for name, value in self.gcs.items()})
+        for name in ("compute_latency_s", "telemetry_to_command_s"):
+            values = sorted(getattr(self, name))
+            if values:
+                out[f"{name}_median"] = statistics.median(values)
+                out[f"{name}_p99"] = values[min(len(values) - 1, int(0.99 * len(values)))]
+        return out
+
+
+class Vessel(VesselLinks, AutopilotDriving):
+    """One autonomy process: vehicle link, estimator and controller, agent and mesh. `run()` until `stop()`."""
+
+    def __init__(self, config: VesselConfig, clock: ScaledWallClock | None = None) -> None:
+        self.config = config
+        self.clock = clock or ScaledWallClock(config.time_scale)
+        c = config
+        if c.on_stop not in ON_STOP_ACTIONS:
+            raise ValueError(f"on_stop must be one of {', '.join(ON_STOP_ACTIONS)}, got {c.on_stop!r}")
+        if c.kind == BUOY:
+            model = BuoyModel() if c.top_speed_mps is None else BuoyModel.for_top_speed(c.top_speed_mps)
+            self.max_actuator = model.max_thrust_n
+            self.pipeline: BuoyPipeline | EbotPipeline = buoy_pipeline(c, model)
+        elif c.kind == EBOT:
+            self.max_actuator = c.top_speed_mps or c.ebot.max_wheel_speed_mps
+            self.pipeline = ebot_pipeline(c, self.max_actuator)
+        elif c.kind == MOTORBOAT:
+            self.max_actuator = 1.0  # (throttle, steering), each in [-1, 1]
+            self.pipeline = motorboat_pipeline(c, MotorboatModel.for_top_speed(c.top_speed_mps or 2.0))
+        else:
+            raise ValueError(f"unknown vehicle kind {c.kind!r}; choose buoy, motorboat or ebot")
+        self.frame = LocalFrame(*c.origin)
+        fresh = c.params_file is None or not Path(c.params_file).exists()
+        self.params = ParameterStore(c.params_file)
+        if fresh or self.params.load_problem:  # a new vessel (or one whose file was set aside as corrupt)
+            # starts from its configured behaviour; later the stored parameters rule
+            self.params.set_many(behavior_params(c.behavior, self.frame))
+            goal = c.behavior.params.get("goal")
+            if goal is not None:
+                self.params.set_goals([tuple(float(v) for v in self.frame.to_geodetic(goal[0], goal[1]))])
+        key = load_signing_key(c.signing_key_file) if c.signing_key_file else None
+        self.gcs = GcsComponent(c.system_id, self.params, signing_key=key, clock=self.clock.now)
+        self.gcs.behavior_running = c.autostart
+        self.supervisor = Supervisor(self.params, c.behavior, self.frame)
+        self.tlog = TlogWriter(c.tlog) if c.tlog else None
+        self.vehicle_link: Link = open_link(c.vehicle, c.baud)
+        telemetry_kind = BUOY if c.kind == MOTORBOAT else c.kind  # a motorboat's telemetry is a buoy's
+        self.vehicle = VehicleLink(
+            c.system_id, telemetry_kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
+        )
+        self.autopilot = AutopilotSession(
+            c.system_id, c.kind, self.vehicle.encoder, self.clock.now, estimator=c.estimator
+        )
+        self.vehicle.decoder.message_hook = self._vehicle_message
+        self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
+        self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
+        mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
+        network = (
+            ThrottledMesh(
+                LinkMesh(self.mesh_link, c.agent_id, c.memory_fields, self.clock.now, key=mesh_key),
+                c.broadcast_period_s,
+            )
+            if self.mesh_link is not None
+            else SilentMesh()
+        )
+        self.network = network
+        self.sensing = EbotSenses(np.radians(c.ebot.sonar_angles_deg)) if c.kind == EBOT else None
+        self.body = MavlinkBody(self.pipeline, self.clock, self.sensing)
+        self.agent = Agent(c.agent_id, self.body, network, self.supervisor.behavior(), self.clock, c.neighbor_expiry_s)
+        self.stats = VesselStats()
+        self._stop = threading.Event()
+        self._next_heartbeat_s = -math.inf
+        self._last_reading_wall_s: float | None = None
+        self._alarm = False
+        self.has_fix = False
+        self._obeying = True
+        self._from_vehicle: list[bytes] = []  # the vehicle's frames waiting for the next ground-station write
+        self._hold_heading = False
+        self._heading_ref: float | None = None
+        self._ignoring_since: float | None = None
+        self._ignoring_warned = False
+
+    # -- link ------------------------------------------------------------------------------------------
+
+    def _report_position(self, now: float) -> None:
+        e = self.pipeline.estimate(now)
+        if np.isfinite(e.position).all():
+            lat, lon = self.frame.to_geodetic(e.position[0, 0], e.position[0, 1])
+            vx, vy = e.velocity[0]
+            heading = float(e.heading[0]) if math.isfinite(e.heading[0]) else None
+            self.gcs.report_position(float(lat), float(lon), float(vx), float(vy), heading)
+
+    def _check_estimate(self, now: float) -> None:
+        """A diverged estimate (non-finite, or far from the newest GPS fix) is reset and reported; the vessel is
+        held at neutral until a fix sets the estimate again."""
+        if not isinstance(self.pipeline, BuoyPipeline) or not self.pipeline.diverged(now).any():
+            return
+        e = self.pipeline.estimate(now)
+        self.pipeline.reset()
+        self.has_fix = False
+        self.stats.estimator_resets += 1
+        text = (
+            f"vessel {self.config.system_id}: position estimate diverged ({e.position[0, 0]:.3g}, "
+            f"{e.position[0, 1]:.3g}) m against the GPS fix; filter reset ({self.stats.estimator_resets} so far)"
+        )
+        logger.error("%s", text)
+        self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+
+    def _heartbeat(self, now: float) -> None:
+        if now >= self._next_heartbeat_s:
+            self._next_heartbeat_s = now + self.config.time_scale  # one wall second
+            self._send(heartbeat(encoder=self.autopilot.encoder))
+
+    # -- start -----------------------------------------------------------------------------------------
+
+    def arm(self) -> None:
+        """Bring the autopilot into service (`bob_autonomy.onboard.autopilot_start`): streams, parameters, mode, ready,
+        armed. Raises VehicleError saying what is wrong and what to change."""
+        c = self.config
+        options = replace(
+            c.autopilot, heartbeat_timeout_s=c.arm_timeout_s, arm_timeout_s=c.arm_timeout_s, control_period_s=c.dt_s
+        )
+        starter = AutopilotStarter(
+            self.autopilot, self._send, self._pump_and_serve, self._stop.is_set, self.gcs.notify, options
+        )
+        try:
+            profile = starter.run()
+        except AutopilotStartError as error:
+            raise VehicleError(f"vehicle {c.system_id} on {c.vehicle!r}: {error}") from None
+        if profile is None:
+            return
+        speed = profile.top_speed_mps
+        on_ground = profile.known and profile.frame_class != 2  # FRAME_CLASS 2: a boat
+        if c.kind == BUOY and ((c.top_speed_mps is None and speed is not None) or on_ground):
+            # The autopilot knows how fast full throttle goes and whether it floats; the estimator and the MPC
+            # model that vehicle.
+            top = c.top_speed_mps or speed
+            model = BuoyModel() if top is None else BuoyModel.for_top_speed(top)
+            self.pipeline = self.body.pipeline = buoy_pipeline(self.config, model, on_ground=on_ground)
+            logger.info(
+                "vessel model: top speed %s m/s at full throttle, %s", top, "on the ground" if on_ground else "afloat"
+            )
+        if c.kind == MOTORBOAT and (c.top_speed_mps is None or profile.turn_radius_m is not None):
+            # The autopilot says how fast full throttle goes (SPEED_MAX or CRUISE_*) and how tight it turns
+            # (TURN_RADIUS): the MPC plans with that boat.
+            top = min(max(c.top_speed_mps or speed or 2.0, 0.1), 50.0)  # what MotorboatModel takes
+            model = MotorboatModel.for_top_speed(top, profile.turn_radius_m)
+            self.pipeline = self.body.pipeline = motorboat_pipeline(self.config, model)
+            radius = model.turning_radius_m
+            logger.info("motorboat model: %.2f m/s at full throttle, turning radius %.2f m", top, radius)
+        if c.kind == EBOT and c.top_speed_mps is None and speed is not None:
+            # Wheels at full throttle move this fast (an eBot's 0.2 m/s is not a rover's): commands scale to it.
+            self.max_actuator = speed
+            self.pipeline = self.body.pipeline = ebot_pipeline(self.config, speed)
+            logger.info("vessel model: wheel speed %.2f m/s at full throttle (from the autopilot)", speed)
+        if c.kind == BUOY and profile.lateral_capable:
+            self._hold_heading = True
+        logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)
+
+    # -- the loop --------------------------------------------------------------------------------------
+
+    def tick(self) -> None:
+        """One control step (see the module docstring)."""
+        now = self.clock.now()
+        self.stats.ticks += 1
+        self._heartbeat(now)
+        self._check_estimate(now)
+        try:
+            self._report_position(now)
+        except Exception:  # a report is never worth the process: count it and go on
+            self.stats.step_errors += 1
+            logger.exception("position report failed (%d so far)", self.stats.step_errors)
+        self.serve_gcs()
+        self._watch_autopilot(now)
+        if self.vehicle.silent():
+            if not self._alarm:
+                self.stats.silent_alarms += 1
+                text = f"ALARM: vehicle {self.config.system_id} silent for {self.vehicle.watch.silent_for_s():.1f} s"
+                logger.error("%s: commanding neutral", text)
+                self.gcs.notify(mavlink.MAV_SEVERITY_ALERT, text)
+            self._alarm = True
+            self._send(self._override(np.zeros(2)))
+            return
+        if self._alarm:
+            logger.warning("vehicle %d heard again", self.config.system_id)
+            self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, f"vehicle {self.config.system_id} heard again")
+            self._alarm = False
+        start = time.perf_counter()
+        if not self.has_fix:
+            self.has_fix = bool(np.isfinite(self.pipeline.estimate(now).position).all())
+            if not self.has_fix:
+                self._send(self._override(np.zeros(2)))  # waiting for a position: hold still
+                return
+        if not self._obeying:
+            self._send(self._override(np.zeros(2)))  # not in our mode: neutral until it is again
+            return
+        try:
+            behavior = self.supervisor.behavior()
+            if behavior is not self.agent.behavior:
+                self.agent.behavior = behavior
+            self.agent.step()
+            position = self.pipeline.estimate(now).position[0]
+            velocity = self.supervisor.velocity(
+                position, self.body.wish_velocity, self.gcs.behavior_running, self.gcs.gcs_lost
+            )
+            wish = velocity[None, :]
+            if isinstance(self.pipeline, BuoyPipeline):
+                actuator = self.pipeline.thrust(wish, now)[0]
+            else:
+                actuator = self.pipeline.wheels(wish, np.array([self.body.wish_heading]), now)[0]
+        except Exception:  # one bad step must not kill the vessel: count it, stop the actuators, go on
+            self.stats.step_errors += 1
+            logger.exception("control step failed (%d so far); commanding neutral", self.stats.step_errors)
+            actuator = np.zeros(2)
+        self._send(self._override(actuator, hold_heading=True))
+        done = time.perf_counter()
+        self.stats.commands += 1
+        self.stats.compute_latency_s.append(done - start)
+        if self._last_reading_wall_s is not None:
+            self.stats.telemetry_to_command_s.append(done - self._last_reading_wall_s)
+
+    def run(self, duration_s: float | None = None) -> VesselStats:
+        """Arm, then run control steps every dt_s (clock seconds) until `stop()` or `duration_s` has passed."""
+        self.arm()
+        if self.vehicle.last_heartbeat is None:
+            self.vehicle.watch.restart()  # the arming handshake was the start-up; silence counts from here
+        end = math.inf if duration_s is None else self.clock.now() + duration_s
+        next_tick = self.clock.now()
+        while not self._stop.is_set() and self.clock.now() < end:
+            # Read telemetry as it arrives until the tick is due, then act on everything heard.
+            while not self._stop.is_set():
+                wait = self.clock.wall_seconds(next_tick - self.clock.now())
+                if wait <= 0:
+                    break
+                self._pump_and_serve(min(wait, 0.05))  # the router passes frames on between ticks too
+            self.pump(0.0)
+            self.tick()
+            next_tick += self.config.dt_s
+            if next_tick < self.clock.now():  # fell behind: skip the missed ticks rather than burst
+                next_tick = self.clock.now()
+        self.shutdown()
+        return self.stats
+
+    def stop(self) -> None:
+        """Ask `run()` to finish (safe from a signal handler or another thread)."""
+        self._stop.set()
+
+    def _linger(self, seconds: float, frame: bytes | None) -> None:
+        """Send `frame` every control period for `seconds` (wall) while reading the link, so that the autopilot
+        has applied it before we close (ArduPilot SITL drops unparsed bytes when a TCP peer closes, issue #18)."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if frame is not None:
+                self._send(frame)
+            self.pump(min(self.config.dt_s, max(0.0, end - time.monotonic())))
+
+    def shutdown(self) -> None:
+        """Leave the vehicle at neutral (then in HOLD or disarmed if configured), hand the RC channels back,
+        and close the links."""
+        neutral = self._override(np.zeros(2))
+        self._linger(STOP_LINGER_S, neutral)
+        if self.config.on_stop == "hold":
+            self._send(self.autopilot.set_mode("HOLD"))
+            self._linger(0.3, neutral)
+        elif self.config.on_stop == "disarm":
+            self._send(self.autopilot.arm(False))
+            self._linger(0.3, neutral)
+        self._send(self.autopilot.release())
+        self._linger(0.2, None)
+        for link in (self.vehicle_link, self.mesh_link, self.gcs_link):
+            if link is not None:
+                link.close()
+        if self.tlog is not None:
+            self.tlog.close()
+        self.stats.gcs = self.gcs.log_counters()
+        self.stats.mpc_fallbacks = sum(getattr(m, "fallbacks", 0) for m in getattr(self.pipeline, "mpcs", ()))
+        # One JSON line that process fleets read back (sitl.fleets.vessel_logs) for metrics.json.
+        logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))
+        if isinstance(self.network, ThrottledMesh):  # what the mesh refused, and why (docs/mesh.md)
+            mesh = {**self.network.inner.counters(), "implausible": self.agent.neighbors.counters()}
+            logger.info("vessel %d mesh: %s", self.config.system_id, json.dumps(mesh))

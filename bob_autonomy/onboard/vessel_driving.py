@@ -1,0 +1,102 @@
+"""How a vessel drives its autopilot (bob_autonomy.onboard.vessel): actuator commands as RC overrides, the heading hold
+of omni frames, and watching that the autopilot obeys (its mode, our overrides taken, its telemetry rates)."""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from bob_autonomy.onboard.autopilot import MOTORBOAT
+from bob_autonomy.onboard.vehicle_link import BUOY
+from firmware_bridge.commands import ROVER_MODES
+
+if TYPE_CHECKING:
+    from bob_autonomy.ground.gcs import GcsComponent
+    from bob_autonomy.onboard.autopilot import AutopilotSession
+    from bob_autonomy.onboard.vessel import VesselConfig
+
+logger = logging.getLogger("bob_autonomy.onboard.vessel")
+
+HEADING_KP = 0.15  # steering per rad of heading error (omni frames)
+HEADING_KD = 0.05  # steering per rad/s of yaw rate
+HEADING_STEER_MAX = 0.15
+
+
+class AutopilotDriving:
+    """Commands to the autopilot and the watch on it, mixed into Vessel, which provides the attributes here."""
+
+    config: VesselConfig
+    autopilot: AutopilotSession
+    gcs: GcsComponent
+    max_actuator: float
+    _hold_heading: bool
+    _heading_ref: float | None
+    _obeying: bool
+    _ignoring_since: float | None
+    _ignoring_warned: bool
+
+    def _override(self, actuator: np.ndarray, *, hold_heading: bool = False) -> bytes:
+        """RC overrides for a buoy's body-frame thrust (x forward, y left; N), a motorboat's (throttle, steering)
+        or an eBot's wheel speeds (left, right; m/s), through the autopilot's RC map and calibration
+        (`AutopilotSession.override`)."""
+        a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2)) / self.max_actuator
+        if self.config.kind == MOTORBOAT:
+            return self.autopilot.override(a[1], a[0], None)
+        if self.config.kind == BUOY:
+            steering = self._heading_hold_steering() if hold_heading else 0.0
+            return self.autopilot.override(steering, a[0], -a[1])
+        return self.autopilot.override((a[0] - a[1]) / 2.0, (a[0] + a[1]) / 2.0, None)
+
+    def _heading_hold_steering(self) -> float:
+        """Steering (positive = turn right) that holds the hull at the heading it had when driving began: on an
+        omni frame the thrust goes in any direction, so nothing else stops the hull from wandering (issue #18).
+        PD on the autopilot's own attitude (ATTITUDE: fresh and low-lag): u = -kp e + kd r, e = reference - heading
+        (rad, counter-clockwise positive), r the counter-clockwise yaw rate (rad/s), |u| <= HEADING_STEER_MAX."""
+        a = self.autopilot
+        if not self._hold_heading or not math.isfinite(a.heading_rad) or a.clock() - a.attitude_t > 1.0:
+            return 0.0
+        if self._heading_ref is None:
+            self._heading_ref = a.heading_rad
+        error = math.remainder(self._heading_ref - a.heading_rad, 2 * math.pi)
+        u = -HEADING_KP * error + HEADING_KD * a.yaw_rate_radps
+        return float(np.clip(u, -HEADING_STEER_MAX, HEADING_STEER_MAX))
+
+    def _watch_autopilot(self, now: float) -> None:
+        """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground
+        station), our overrides not taken, or telemetry too slow for the estimator."""
+        a = self.autopilot
+        wanted = ROVER_MODES[self.config.autopilot.mode]
+        obeying = a.custom_mode is None or a.custom_mode == wanted
+        if obeying != self._obeying:
+            if obeying:
+                text = f"vehicle {self.config.system_id} back in {self.config.autopilot.mode}: driving again"
+            else:
+                text = (
+                    f"vehicle {self.config.system_id} is in {a.mode_name()}, not {self.config.autopilot.mode}: it "
+                    "ignores our commands (a failsafe or a ground station?); commanding neutral until it is back"
+                )
+            logger.warning("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+            self._obeying = obeying
+        ignoring = a.ignoring_overrides(now)
+        if ignoring and self._ignoring_since is None:
+            self._ignoring_since = now
+        elif not ignoring:
+            if self._ignoring_warned:
+                logger.warning("vehicle %d takes our RC overrides again", self.config.system_id)
+            self._ignoring_since, self._ignoring_warned = None, False
+        if self._ignoring_since is not None and now - self._ignoring_since > 2.0 and not self._ignoring_warned:
+            self._ignoring_warned = True
+            text = (
+                f"vehicle {self.config.system_id} does not apply our RC overrides (its RC_CHANNELS differ): "
+                f"check MAV_GCS_SYSID = {a.encoder.mav.srcSystem} and RC_OVERRIDE_TIME > 0"
+            )
+            logger.error("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+        for text in a.slow_streams(now):
+            logger.warning("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)

@@ -1,0 +1,145 @@
+"""A vessel's links (bob_autonomy.onboard.vessel): reading and decoding the vehicle, sending to it, serving the ground
+station and routing frames between the two, as mavlink-router does on a companion computer."""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING
+
+from bob_autonomy.ground.gcs import GcsComponent
+from bob_autonomy.onboard.senses import EbotSenses
+from bob_autonomy.onboard.vehicle_link import VehicleLink
+from firmware_bridge.links import Link, LinkError
+from firmware_bridge.tlog import TlogWriter
+
+if TYPE_CHECKING:
+    from bob_autonomy.onboard.autopilot import AutopilotSession
+    from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
+    from bob_autonomy.onboard.vessel import VesselConfig, VesselStats
+
+logger = logging.getLogger("bob_autonomy.onboard.vessel")
+
+MAX_ROUTED_BACKLOG = 2000  # frames; a ground-station link that cannot keep up loses the oldest
+DATAGRAM_BYTES = 1200  # MAVLink frames per UDP datagram up to this size (one frame may be larger)
+
+
+def _datagrams(frames: list[bytes]) -> list[bytes]:
+    """Whole frames packed into datagrams of at most DATAGRAM_BYTES (a frame is never split)."""
+    out: list[bytes] = []
+    current = bytearray()
+    for frame in frames:
+        if current and len(current) + len(frame) > DATAGRAM_BYTES:
+            out.append(bytes(current))
+            current = bytearray()
+        current += frame
+    if current:
+        out.append(bytes(current))
+    return out
+
+
+class VesselLinks:
+    """The vessel's link handling, mixed into Vessel, which provides the attributes declared here."""
+
+    config: VesselConfig
+    stats: VesselStats
+    tlog: TlogWriter | None
+    vehicle_link: Link
+    gcs_link: Link | None
+    vehicle: VehicleLink
+    autopilot: AutopilotSession
+    gcs: GcsComponent
+    pipeline: BuoyPipeline | EbotPipeline | MotorboatPipeline
+    sensing: EbotSenses | None
+    _from_vehicle: list[bytes]
+    _last_reading_wall_s: float | None
+
+    def _vehicle_message(self, msg) -> None:
+        """Every message decoded from the vehicle link: to the tlog, and the autopilot's to the session."""
+        if self.tlog is not None:
+            self.tlog.write_message(msg)
+        self.autopilot.handle(msg)
+        if self.gcs_link is not None and msg.get_srcSystem() == self.config.system_id:
+            # The vehicle's own traffic goes on to the ground station (mavlink-router's job on a companion).
+            self._from_vehicle.append(bytes(msg.get_msgbuf()))
+            if len(self._from_vehicle) > MAX_ROUTED_BACKLOG:
+                del self._from_vehicle[: len(self._from_vehicle) - MAX_ROUTED_BACKLOG]
+
+    def _send(self, data: bytes) -> None:
+        if self.tlog is not None:
+            self.tlog.write_frame(data)  # every command is one frame
+        try:
+            self.vehicle_link.write(data)
+        except LinkError as error:
+            self.stats.link_errors += 1
+            logger.error("vehicle link write failed (%d so far): %s", self.stats.link_errors, error)
+
+    def pump(self, wait_wall_s: float = 0.0) -> None:
+        """Read and decode what the vehicle sent, waiting at most `wait_wall_s` for the first bytes."""
+        timeout = max(0.0, wait_wall_s)
+        while True:
+            try:
+                data = self.vehicle_link.read(65535, timeout)
+            except LinkError as error:
+                self.stats.link_errors += 1
+                logger.error("vehicle link read failed (%d so far): %s", self.stats.link_errors, error)
+                time.sleep(min(timeout, 0.1))
+                return
+            if not data:
+                return
+            timeout = 0.0
+            readings = self.vehicle.receive(data)
+            if readings:
+                self._last_reading_wall_s = time.perf_counter()
+                self.stats.readings += len(readings)
+                try:
+                    self.pipeline.feed(readings)
+                    if self.sensing is not None:
+                        self.sensing.feed(readings)
+                except Exception:  # one bad reading must not stop the vessel: count it, log it, go on
+                    self.stats.reading_errors += 1
+                    logger.exception("readings could not be fused (%d so far)", self.stats.reading_errors)
+
+    def _pump_and_serve(self, wait_wall_s: float) -> None:
+        """Read the vehicle link and serve the ground station (during the start-up, which the GCS sees)."""
+        self.pump(wait_wall_s)
+        self.serve_gcs()
+
+    def serve_gcs(self) -> None:
+        """Exchange what is due with the ground station(s): read their datagrams, answer, pass on autopilot
+        commands (arm, disarm, set mode) to the vehicle."""
+        gcs, link = self.gcs, self.gcs_link
+        while link is not None:
+            try:
+                data, sender = link.read_from(65535, 0.0)
+            except LinkError as error:
+                self.stats.link_errors += 1
+                logger.warning("ground-station link read failed: %s", error)
+                break
+            if not data:
+                break
+            if gcs.receive(data, datagram=True):  # frames passed the checks (signature when keyed): answer it
+                link.confirm_peer(sender)
+        for frame in gcs.take_for_autopilot():
+            self.stats.routed_to_vehicle += 1
+            self._send(frame)
+        for command in gcs.take_autopilot_commands():
+            if command.kind in ("arm", "disarm"):
+                self._send(self.vehicle.arm(command.kind == "arm"))
+            elif command.kind == "set_mode" and command.custom_mode is not None:
+                self._send(self.vehicle.set_mode(int(command.custom_mode)))
+        gcs.tick()
+        own = gcs.outgoing()
+        if self.tlog is not None:
+            for frame in own:
+                self.tlog.write_frame(frame)
+        routed, self._from_vehicle = self._from_vehicle, []
+        self.stats.routed_to_gcs += len(routed)
+        if link is None:
+            return
+        for datagram in _datagrams(own + routed):
+            try:
+                link.write(datagram)
+            except LinkError as error:
+                self.stats.link_errors += 1
+                logger.warning("ground-station link write failed: %s", error)
