@@ -24,9 +24,8 @@ from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 V2_MARKER = 0xFD
-V2_HEADER = struct.Struct(
-    "<BBBBBBBHB"
-)  # marker, length, incompat, compat, seq, system, component, id low 16, id high 8
+# marker, payload length, incompat flags, compat flags, seq, system, component, message id low 16 bits, high 8
+V2_HEADER = struct.Struct("<BBBBBBBHB")
 V2_HEADER_LEN = V2_HEADER.size
 SIGNED_FLAG = mavlink.MAVLINK_IFLAG_SIGNED
 checksum = crc16.mcrf4xx  # CRC-16/MCRF4XX (MAVLink's "X.25"): checksum(data, seed=0xFFFF) -> int
