@@ -1,4 +1,4 @@
-"""Cost of the buoy and eBot EKFs (bob_autonomy.estimation.ekf): per call for one vessel, and per simulated step for
+"""Cost of the buoy and eBot EKFs (bob_autonomy.estimation): per call for one vessel, and per simulated step for
 a fleet.
 
 One vessel (microseconds per call, median over --calls calls): each call is timed
@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from bob_autonomy.core.geodesy import LocalFrame
-from bob_autonomy.estimation.ekf import BuoyEkf, BuoyEkfBank, EbotEkf
+from bob_autonomy.estimation import BuoyEkf, BuoyEkfBank, EbotEkf
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
 from sitl.vehicles.sensors import SensorSuite
 

@@ -1,4 +1,4 @@
-"""bob_autonomy/estimation/ekf.py: the buoy and eBot EKFs on filterpy.
+"""bob_autonomy/estimation/: the buoy and eBot EKFs on filterpy.
 
 The truth is simulated here with simple kinematics, independent of the filter:
 a buoy of mass 35 kg (with added mass) pushed by a known, slowly turning thrust
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
-from bob_autonomy.estimation.ekf import (
+from bob_autonomy.estimation import (
     BuoyEkf,
     BuoyEkfBank,
     BuoyEkfParams,

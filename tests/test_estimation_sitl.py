@@ -1,6 +1,6 @@
 """The buoy EKF in the simulated loop, measured against the simulator's truth (issue #5: state estimation).
 
-The drift. What the EKF estimates (bob_autonomy.estimation.ekf) is the EQUIVALENT DRIFT at
+The drift. What the EKF estimates (bob_autonomy.estimation) is the EQUIVALENT DRIFT at
 the buoy's operating velocity v: the water velocity d for which the nominal drag
 law gives the push the hull really feels from water and wind at v,
 (c1 + c2 |d - v|) (d - v) = E(v). For an unpowered buoy that is the velocity over

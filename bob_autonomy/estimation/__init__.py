@@ -147,7 +147,7 @@ Modules
 * `buoy_ekf_bank`: `BuoyEkfBank`, its code spread over three bases: `buoy_updates` (GPS, compass, gyro and the
   gated fusion), `buoy_process` (nozzle slew, prediction, drag balance) and `buoy_replay` (time, log, replay).
 * `buoy_ekf`: `BuoyEkf`, a bank of one. `ebot_ekf`: `EbotEkfParams`, `EbotEkf`, `EbotEkfBank`.
-`bob_autonomy.estimation.ekf` re-exports the public names (the former single module).
+The package exports the public names.
 """
 
 from bob_autonomy.estimation.buoy_ekf import BuoyEkf

@@ -21,7 +21,7 @@ from bob_autonomy.control.motorboat_control import MotorboatCommand, MotorboatCo
 from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc
 from bob_autonomy.control.velocity_control import BuoyModel, BuoyVelocityController, DiffDriveController
 from bob_autonomy.core.geodesy import LocalFrame
-from bob_autonomy.estimation.ekf import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
+from bob_autonomy.estimation import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
 from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
 from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
