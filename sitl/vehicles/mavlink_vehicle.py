@@ -68,7 +68,7 @@ from sitl.vehicles.vehicle_defs import (  # noqa: F401 - re-exported: callers im
     VehicleCounters,
     _finite,
     m,
-)  # fmt: skip
+)
 from sitl.vehicles.vehicle_rc_input import RcInputHandling
 from sitl.vehicles.vehicle_streams import TelemetryStreams
 

@@ -13,7 +13,7 @@ from sitl.vehicles.vehicle_defs import (
     SUPPORTED_MODES,
     _finite,
     m,
-)  # fmt: skip
+)
 
 
 class VehicleCommands:

@@ -18,7 +18,7 @@ from sitl.vehicles.vehicle_defs import (
     DRIVING_MODES,
     MOTORBOAT,
     OVERRIDE_FIELDS,
-)  # fmt: skip
+)
 
 
 class RcInputHandling:

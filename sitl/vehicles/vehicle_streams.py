@@ -15,7 +15,7 @@ from sitl.vehicles.vehicle_defs import (
     HOUSEKEEPING_PERIOD_S,
     PRODUCED_IN_ORDER,
     m,
-)  # fmt: skip
+)
 
 
 class TelemetryStreams:
