@@ -18,7 +18,13 @@ three candidates the issue names, each emulated here by wrapping the vessel's co
    between "still fast" and "never settles". Measured (seeds 1-10 and 101-110, dt 0.1 s): 0.2 s agrees in 3.0-3.9 s;
    0.3 s never gets within 5 degrees (a limit cycle of 10-25 degrees; 0.4 s: 80-170 degrees). At dt 0.05 s and
    0.025 s (seeds 1-5): 0.25 s agrees in 4.1-4.8 s, 0.275 s in 4.3-5.4 s with the follow already failing at seed 4
-   (5.1 degrees at 40 s), 0.3 s in 12-18 s but 5.4-11.5 degrees off the leader at 40 s. No latency gives both.
+   (5.1 degrees at 40 s), 0.3 s in 12-18 s but 5.4-11.5 degrees off the leader at 40 s. No latency gives both
+   at this gain. With the authors' gain (1.06 rad/s per rad on the robot, below) and 0.3 s it agrees in 2.0-2.6 s
+   and is 11-15 degrees off the leader at 40 s (the follow mode decays at K / 10). Halving our gain to 2 /s and
+   delaying by 0.5 s (K tau = 1) does give both (agreement 8.6-12.4 s, the follow met, seeds 1-10 and 101-110),
+   but 0.4 s agrees in 3.6-4.8 s and 0.6 s never, and a single eBot then overshoots a 90 degree turn by 52
+   degrees: the oscillation marabunta's authors tuned their gain against ("too big and the robot oscillates before
+   reaching the target heading", ebotBody.move_background), which their own gain and a 0.3 s delay do not show.
 
 3. A cap on the yaw rate. Only a nonlinearity that slows large turns and not small ones can separate agreement (robots
    turn up to 180 degrees) from following (each update moves a follower about a tenth of its offset). Agreement
@@ -38,27 +44,45 @@ import math
 import numpy as np
 import pytest
 
+from behaviors.base import wrap_angle
 from bob_autonomy.control.velocity_control import DiffDriveController
 from bob_autonomy.onboard.pipeline import EbotPipeline
-from sitl.experiments.runner import simulate
+from sitl.experiments.runner import RunResult, simulate
 from sitl.experiments.scenario import load_scenario
 from sitl.vehicles.dynamics import DiffDriveParams
 
 TOLERANCE_DEG = 5.0
+LEADER_T_S = 22.0
 FOLLOW_BY_S = 40.0
 EBOT = DiffDriveParams()
 EBOT_MAX_YAW_RATE_RADPS = 2.0 * EBOT.max_wheel_speed_mps / EBOT.wheel_base_m  # turning in place at full wheel speed
 
 
-def physics_run(seed: int, dt_s: float = 0.1) -> dict:
+def physics_result(seed: int) -> RunResult:
     """The packaged heading-consensus at physics fidelity (direct vehicle link: the same loop, faster)."""
     scenario = load_scenario("heading-consensus").with_overrides(seed=seed, fidelity="physics", link="direct")
     assert scenario.groups[0].params["cruise_speed"] == 0.0  # turning in place: the vessel's simple controller
-    return simulate(scenario.model_copy(update={"dt_s": dt_s})).metrics
+    return simulate(scenario)
 
 
-def delay_turn_loop(monkeypatch: pytest.MonkeyPatch, latency_s: float, dt_s: float) -> None:
-    """The eBots' turn controller acts on the heading estimate of `latency_s` ago (the Bluetooth round trips).
+def physics_run(seed: int) -> dict:
+    return physics_result(seed).metrics
+
+
+def leader_overshoot_deg(result: RunResult) -> float:
+    """How far (deg) the leader, robot 0, turns past the heading it holds from t = 22 s (90 deg counter-clockwise
+    of its heading then): a single eBot's step response, since a leader no longer averages."""
+    t, heading = result.recorder.agent_series(0, "heading")
+    start = int(np.searchsorted(t, LEADER_T_S))
+    held = heading[start] + math.pi / 2.0
+    return float(np.degrees(wrap_angle(heading[start:] - held)).max())
+
+
+def delay_turn_loop(
+    monkeypatch: pytest.MonkeyPatch, latency_s: float, dt_s: float = 0.1, gain_per_s: float | None = None
+) -> None:
+    """The eBots' turn controller acts on the heading estimate of `latency_s` ago (the Bluetooth round trips),
+    with a turn gain of `gain_per_s` rad/s per rad (None: the vessel's own, 4).
 
     Turning in place, EbotPipeline.wheels uses the simple proportional controller only; this replaces the heading
     it is given by the one `latency_s / dt_s` control steps older.
@@ -66,6 +90,8 @@ def delay_turn_loop(monkeypatch: pytest.MonkeyPatch, latency_s: float, dt_s: flo
     steps = round(latency_s / dt_s)
 
     def wheels(self, wish_mps, wish_heading_rad, t_s, *, idle=False):
+        if gain_per_s is not None:
+            self.simple.turn_gain_per_s = gain_per_s
         history = self.__dict__.setdefault("_test_heading_history", collections.deque(maxlen=steps + 1))
         history.append(self.estimate(t_s).heading.copy())
         return self.simple.wheels(wish_mps, wish_heading_rad, history[0])
@@ -110,6 +136,41 @@ def test_one_more_step_of_latency_never_settles(seed: int, monkeypatch) -> None:
     assert m["consensus_time_s"] is None  # never within 5 degrees before the leader appears
     assert m["spread_at_consensus_deadline_deg"] > TOLERANCE_DEG
     assert m["deviation_from_leader_at_deadline_deg"] > 2 * TOLERANCE_DEG  # a limit cycle, not a follow
+
+
+# marabunta's ebotBody.move_background: omega = (2.5 / pi) * error, wheel speed 0.5 * omega * 0.10 m as a fraction of
+# 0.15 m/s, a fraction 1 being the eBot's 0.20 m/s: 1.06 rad/s per rad on the robot.
+AUTHORS_GAIN_PER_S = 2.5 / math.pi * 0.5 * 0.10 / 0.15 * 2.0 * EBOT.max_wheel_speed_mps / EBOT.wheel_base_m
+
+
+def test_the_authors_turn_gain_and_latency_agree_fast_and_follow_too_slowly(monkeypatch) -> None:
+    delay_turn_loop(monkeypatch, 0.3, gain_per_s=AUTHORS_GAIN_PER_S)
+    result = physics_result(1)
+    m = result.metrics
+    assert m["consensus_time_s"] < 11.0 / 2.0  # 2.6 s
+    assert m["deviation_from_leader_at_deadline_deg"] > 2 * TOLERANCE_DEG  # 11.4 deg: the follow mode is K / 10
+    assert leader_overshoot_deg(result) < 2.0  # a single eBot does not oscillate: as the authors tuned it
+
+
+def test_the_gain_and_latency_that_give_both_make_an_ebot_overshoot_a_90_degree_turn_by_50(monkeypatch) -> None:
+    # Twice the authors' gain and a 0.5 s delay (a K tau of 1, whose step response overshoots by about half):
+    # agreement 8.6-12.4 s and the follow met at seeds 1-10 and 101-110, but the leader alone rings.
+    delay_turn_loop(monkeypatch, 0.5, gain_per_s=2.0)
+    result = physics_result(1)
+    m = result.metrics
+    assert 11.0 / 2.0 <= m["consensus_time_s"] <= 2.0 * 11.0  # 11.3 s
+    assert m["deviation_from_leader_at_deadline_deg"] <= TOLERANCE_DEG
+    assert leader_overshoot_deg(result) > 40.0  # 52 deg: "too big and the robot oscillates" (move_background)
+
+
+@pytest.mark.parametrize(("latency_s", "settles"), [(0.4, True), (0.6, False)])
+def test_at_that_gain_0_1_s_less_latency_agrees_too_soon_and_0_1_s_more_never(latency_s, settles, monkeypatch) -> None:
+    delay_turn_loop(monkeypatch, latency_s, gain_per_s=2.0)
+    m = physics_run(1)
+    if settles:
+        assert m["consensus_time_s"] < 11.0 / 2.0  # 4.8 s
+    else:
+        assert m["consensus_time_s"] is None
 
 
 def test_the_latency_model_has_no_margin_between_fast_and_unstable() -> None:
