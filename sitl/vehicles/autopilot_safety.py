@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -56,6 +57,19 @@ RADIO_TIMEOUT_S = 0.5  # Rover/radio.cpp: no valid RC input for 500 ms
 GPS_TIMEOUT_S = 4.0  # libraries/AP_GPS/AP_GPS.cpp GPS_TIMEOUT_MS: no fix after this long without one
 PREARM_DISPLAY_PERIOD_S = 30.0  # libraries/AP_Arming/AP_Arming.cpp PREARM_DISPLAY_PERIOD
 FS_RADIO, FS_GCS = 1, 4  # Rover/defines.h FAILSAFE_EVENT_THROTTLE, FAILSAFE_EVENT_GCS
+
+
+class FailsafeParams(NamedTuple):
+    """The parameters the failsafe checks read at every tick (FS_THR_ENABLE, RCMAP_THROTTLE, FS_THR_VALUE us,
+    FS_GCS_ENABLE, FS_GCS_TIMEOUT s, FS_OPTIONS, FS_TIMEOUT s), cached by the vehicle until one changes."""
+
+    thr_enable: int
+    rcmap_throttle: int
+    thr_value: int
+    gcs_enable: int
+    gcs_timeout_s: float
+    options: int
+    timeout_s: float
 
 
 def needs_velocity(mode: int, skid_steer: bool) -> bool:

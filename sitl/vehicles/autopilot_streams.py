@@ -93,6 +93,7 @@ class StreamSchedule:
         self.group_rate, self.set_group_rate = group_rate, set_group_rate
         self.interval_ms: dict[int, int] = {}
         self.next_due_s: dict[int, float] = {}
+        self._scheduled: dict[tuple[int, ...], tuple[int, ...]] = {}  # ids with an interval, per asked tuple
         for name in STREAM_GROUPS:
             self.initialise_group(name)
         self.interval_ms[m.MAVLINK_MSG_ID_HEARTBEAT] = HEARTBEAT_INTERVAL_MS
@@ -116,6 +117,7 @@ class StreamSchedule:
             interval_ms = max(MIN_INTERVAL_MS, interval_ms)  # set_ap_message_interval: cap_message_interval
         self.interval_ms[message_id] = interval_ms
         self.next_due_s.pop(message_id, None)  # restart its schedule at the next chance
+        self._scheduled.clear()
 
     def set_message_interval(self, param1: float, param2: float, param3: float) -> tuple[int, str | None]:
         """MAV_CMD_SET_MESSAGE_INTERVAL (message id, interval us, response target): (MAV_RESULT, STATUSTEXT)."""
@@ -178,8 +180,12 @@ class StreamSchedule:
 
     def due_among(self, message_ids: tuple[int, ...], t_s: float) -> list[int]:
         """The ids among `message_ids` (kept in their order) that `due` says may go out at t_s, in one pass."""
-        intervals, next_due, limit = self.interval_ms, self.next_due_s, t_s + 1e-9
-        return [i for i in message_ids if intervals.get(i, 0) > 0 and limit >= next_due.get(i, -math.inf)]
+        scheduled = self._scheduled.get(message_ids)
+        if scheduled is None:  # which of them have an interval: changes only with an interval (`_set`)
+            intervals = self.interval_ms
+            scheduled = self._scheduled[message_ids] = tuple(i for i in message_ids if intervals.get(i, 0) > 0)
+        next_due, limit = self.next_due_s, t_s + 1e-9
+        return [i for i in scheduled if limit >= next_due.get(i, -math.inf)]
 
     def sent(self, message_id: int, t_s: float) -> None:
         period = self.interval_ms.get(message_id, 0) / 1000.0

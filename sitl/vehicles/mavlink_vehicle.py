@@ -46,6 +46,7 @@ from sitl.vehicles.autopilot_rc import (
     skid_outputs,
     slew_limited,
 )
+from sitl.vehicles.autopilot_safety import FailsafeParams
 from sitl.vehicles.autopilot_streams import StreamSchedule
 from sitl.vehicles.vehicle_commands import VehicleCommands
 from sitl.vehicles.vehicle_defs import (  # noqa: F401 - re-exported: callers import these from here
@@ -145,6 +146,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         self._gcs_seen_s: float | None = None
         self._driving_override = False
         self.in_failsafe = True  # no override in force (kept for callers that watch it)
+        self._frame_version = self._failsafe_version = -1  # parameter-derived caches, stale at first
 
     # -- parameters that act at once -----------------------------------------------------------------------
 
@@ -158,12 +160,21 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         return float(self.params["RC_OVERRIDE_TIME"])
 
     def omni(self) -> bool:
-        return self.params.get_int("FRAME_TYPE") != 0  # AP_MotorsUGV::is_omni (a known frame type has motors)
+        return self._frame()[0]
 
     def skid_steer(self) -> bool:
         """AP_MotorsUGV::have_skid_steering: throttle left and right assigned, or an omni frame."""
-        functions = {self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)}
-        return {73, 74} <= functions or self.omni()
+        return self._frame()[1]
+
+    def _frame(self) -> tuple[bool, bool]:
+        """(omni, skid steering) from FRAME_TYPE and SERVO1..4_FUNCTION, read again only when a parameter changed
+        (these are asked several times per vehicle and step)."""
+        if self._frame_version != self.params.version:
+            p = self.params
+            omni = p.get_int("FRAME_TYPE") != 0  # AP_MotorsUGV::is_omni (a known frame type has motors)
+            functions = {p.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)}
+            self._frame_cache, self._frame_version = (omni, {73, 74} <= functions or omni), p.version
+        return self._frame_cache
 
     def has_fix(self) -> bool:
         return self._t - self._last_fix_s <= safety.GPS_TIMEOUT_S
@@ -287,25 +298,37 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
             self._report_failures("PreArm", safety.arming_failures(self))
         self.outbox += self.mission.tick(t_s)
 
+    def _failsafe_params(self) -> FailsafeParams:
+        """The failsafe parameters, read again only when a parameter changed (checked at every tick)."""
+        if self._failsafe_version != self.params.version:
+            p = self.params
+            self._failsafe_cache = FailsafeParams(
+                p.get_int("FS_THR_ENABLE"), p.get_int("RCMAP_THROTTLE"), p.get_int("FS_THR_VALUE"),
+                p.get_int("FS_GCS_ENABLE"), p["FS_GCS_TIMEOUT"], p.get_int("FS_OPTIONS"), p["FS_TIMEOUT"],
+            )  # fmt: skip
+            self._failsafe_version = p.version
+        return self._failsafe_cache
+
     def _failsafes(self, t_s: float) -> None:
         p = self.params
+        f = self._failsafe_params()
         radio = False
-        if p.get_int("FS_THR_ENABLE"):
-            ch = p.get_int("RCMAP_THROTTLE")
+        if f.thr_enable:
+            ch = f.rcmap_throttle
             pwm = self.rc.radio_in[ch - 1] if 1 <= ch <= 8 else 0
-            radio = pwm < p.get_int("FS_THR_VALUE") or t_s - self.rc.last_valid_s > safety.RADIO_TIMEOUT_S
+            radio = pwm < f.thr_value or t_s - self.rc.last_valid_s > safety.RADIO_TIMEOUT_S
         gcs = False
-        if p.get_int("FS_GCS_ENABLE") and self._gcs_seen_s is not None:
-            gcs = t_s - self._gcs_seen_s >= p["FS_GCS_TIMEOUT"]
-        may = self.mode not in (safety.HOLD, safety.RTL) or bool(p.get_int("FS_OPTIONS") & 1)
+        if f.gcs_enable and self._gcs_seen_s is not None:
+            gcs = t_s - self._gcs_seen_s >= f.gcs_timeout_s
+        may = self.mode not in (safety.HOLD, safety.RTL) or bool(f.options & 1)
         # As Rover calls failsafe_trigger: the radio check every loop when FS_THR_ENABLE, the GCS check when
         # FS_GCS_ENABLE and the GCS has been heard. Whichever call first finds FS_TIMEOUT passed names the
         # failsafe, so a lost GCS is announced "Radio Failsafe" when the radio check is on (Rover/failsafe.cpp).
-        checks = [(safety.FS_RADIO, "Radio", radio)] if p.get_int("FS_THR_ENABLE") else []
-        if p.get_int("FS_GCS_ENABLE") and self._gcs_seen_s is not None:
+        checks = [(safety.FS_RADIO, "Radio", radio)] if f.thr_enable else []
+        if f.gcs_enable and self._gcs_seen_s is not None:
             checks.append((safety.FS_GCS, "GCS", gcs))
         for kind, name, on in checks:
-            text = self.failsafe.update(kind, name, on, t_s, p["FS_TIMEOUT"], may)
+            text = self.failsafe.update(kind, name, on, t_s, f.timeout_s, may)
             if text is None:
                 continue
             if not text.startswith("!"):
