@@ -82,7 +82,13 @@ _PERIMETER = (
     Figure(
         "spread_perimeter_coverage", "walls covered before the removal", None, "covered 'in the best possible manner'"
     ),
-    Figure("gap_closed_fraction", "fraction of the removal's gap closed", None, "the rest re-spread over the gap"),
+    Figure(
+        "vacated_recovered_fraction",
+        "fraction of the walls only the removed robots covered that the rest cover at the end",
+        None,
+        "the rest 'try to cover the area removed robots were supposed to cover'",
+    ),
+    Figure("gap_closed_fraction", "fraction of the removal's largest empty circle closed"),
 )
 _AVOIDANCE = (
     Figure("arrival_time_s", "mover at its goal, s", None, "reaches its goal"),
