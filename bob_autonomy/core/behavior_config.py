@@ -13,6 +13,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, TypeAdapter, model_validator
 
 from behaviors.base import Behavior
+from behaviors.collision_avoidance import AvoidCollisions
 from behaviors.obstacle_avoidance import AvoidObstacles
 from behaviors.registry import behavior_class, with_avoidance
 
@@ -32,7 +33,9 @@ def build_dataclass(cls: type, params: dict[str, Any], what: str) -> Any:
 
 
 class BehaviorChoice(BaseModel):
-    """A behaviour by registered name, its parameters, and optional obstacle avoidance."""
+    """A behaviour by registered name, its parameters, optional collision avoidance between agents
+    (`behaviors.collision_avoidance`, with `collision_params`) and optional obstacle avoidance (range finders,
+    `behaviors.obstacle_avoidance`, with `avoid_params`), applied in that order: the obstacle veto is last."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -40,6 +43,8 @@ class BehaviorChoice(BaseModel):
     params: dict[str, Any] = {}
     avoid_obstacles: bool = False
     avoid_params: dict[str, float] = {}
+    avoid_collisions: bool = False
+    collision_params: dict[str, float] = {}
 
     @model_validator(mode="after")
     def _buildable(self) -> BehaviorChoice:
@@ -53,6 +58,11 @@ class BehaviorChoice(BaseModel):
         except KeyError as error:
             raise ValueError(error.args[0]) from None
         behavior = build_dataclass(cls, self.params, f"parameter(s) for {self.behavior!r}")
+        if self.avoid_collisions:
+            check_names(self.collision_params, AvoidCollisions, "collision_params")
+            behavior = AvoidCollisions(inner=behavior, **self.collision_params)
+        elif self.collision_params:
+            raise ValueError("collision_params given without avoid_collisions = true")
         if not self.avoid_obstacles:
             return behavior
         check_names(self.avoid_params, AvoidObstacles, "avoid_params")

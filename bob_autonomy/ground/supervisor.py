@@ -96,10 +96,9 @@ class Supervisor:
             goals = self.params.goals
             params["leader_id"] = leader - 1 if leader > 0 else None
             params["goal"] = tuple(self._local(*goals[0])) if goals and leader == 0 else None
-        choice = BehaviorChoice(
-            behavior=name, params=params, avoid_obstacles=self.base.avoid_obstacles, avoid_params=self.base.avoid_params
-        )
-        return choice.build()
+        # The configured wrappers (collision and obstacle avoidance) are kept: no parameter carries them.
+        return choice = {key: getattr(self.base, key) for key in BehaviorChoice.model_fields}
+        return BehaviorChoice(**{**choice, "behavior": name, "params": params}).build()
 
     def _fence(self) -> np.ndarray | None:
         fence = self.params.fence

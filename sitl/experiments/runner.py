@@ -25,6 +25,7 @@ from typing import TypeVar
 import numpy as np
 from tqdm import tqdm
 
+from behaviors.collision_avoidance import AvoidCollisions
 from sitl.experiments.metrics import METRICS
 from sitl.experiments.plots import write_figures
 from sitl.experiments.recorder import Frame, Recorder
@@ -74,10 +75,26 @@ def simulate(scenario: Scenario, progress: bool = False, force: bool = False) ->
     if scenario.fidelity == "physics":
         metrics["estimation"] = estimation_errors(recorder)
         metrics["vehicle_link"] = fleet.bodies.link_counters()
+    avoidance = collision_counters(fleet)
+    if avoidance:
+        metrics["collision_avoidance"] = avoidance
     medium = fleet.medium
     metrics["network"] = medium.counters()  # sent, delivered, dropped, packet_bytes, mesh rejections
     add_mesh_criteria(metrics)  # with intruders on the air: every packet of theirs refused
     return RunResult(fleet, recorder, metrics)
+
+
+def collision_counters(fleet: LockstepFleet) -> dict[str, dict[str, int]]:
+    """Per group (or set-behavior event) with collision avoidance: how many agent-updates it changed the wish
+    (`interventions`) of how many (`updates`); {} when no behaviour has it."""
+    out = {}
+    for k, behavior in enumerate(fleet.behaviors):
+        while not isinstance(behavior, AvoidCollisions) and hasattr(behavior, "inner"):
+            behavior = behavior.inner
+        if isinstance(behavior, AvoidCollisions):
+            name = fleet.group_names[k] if k < len(fleet.group_names) else f"event-{k - len(fleet.group_names)}"
+            out[name] = {"interventions": behavior.interventions, "updates": behavior.updates}
+    return out
 
 
 def estimation_errors(recorder: Recorder) -> dict:

@@ -31,6 +31,8 @@ def behavior_parameters(base: BehaviorChoice, new: BehaviorChoice, frame: LocalF
     carried = BOB_RULE_CARRIED if new.behavior == "bob-rule" else ()
     if (base.avoid_obstacles, base.avoid_params) != (new.avoid_obstacles, new.avoid_params):
         raise ScenarioError("set-behavior: obstacle avoidance cannot be changed over MAVLink")
+    if (base.avoid_collisions, base.collision_params) != (new.avoid_collisions, new.collision_params):
+        raise ScenarioError("set-behavior: collision avoidance cannot be changed over MAVLink")
     kept = {k: v for k, v in base.params.items() if k not in carried} if base.behavior == new.behavior else {}
     wanted = {k: v for k, v in new.params.items() if k not in carried}
     if kept != wanted:

@@ -438,7 +438,7 @@ class ProcessFleet(ProcessLifecycle, ProcessEvents):
 
 
 def _choice(group) -> dict:
-    return {k: getattr(group, k) for k in ("behavior", "params", "avoid_obstacles", "avoid_params")}
+    return {k: getattr(group, k) for k in BehaviorChoice.model_fields}
 
 
 def _finite_estimates(recorder: Recorder) -> Recorder:

@@ -1,0 +1,165 @@
+"""Short-range collision avoidance between agents, as a wrapper around any behaviour (a sampled velocity obstacle).
+
+The inner behaviour decides where to go; this layer only changes the wish when
+following it would bring the agent within `safe_distance_m` of a neighbour in
+the next `horizon_s` seconds, as a skipper's collision avoidance does whatever
+the mission. It uses only what the agent hears: each neighbour's position and
+velocity as broadcast, within `range_m`.
+
+Prediction: the neighbour keeps its velocity v_j; the agent, now at velocity
+v_0, answers a new wish c with a first-order lag of time constant `lag_s`
+(tau): its displacement after t is v_0 t + (c - v_0) g(t), with
+g(t) = t - tau (1 - exp(-t / tau)). The offset to the neighbour after t is
+
+    r(t) = d + (v_j - v_0) t - (c - v_0) g(t),
+
+d the offset now, sampled at t_k = k horizon_s / samples, k = 1..samples.
+
+Threat of c: the mean over the samples, summed over the neighbours, of
+max(0, 1 - |r(t_k)| / safe_distance_m)^2 (zero while every neighbour stays
+beyond the safe distance; 1 for a collision from the first sample on).
+
+Candidates: the wish w; w turned 30, 60, 90 deg either way; w at half speed;
+stopping; `escape_speed_mps` in 8 directions, two of them ahead and astern along
+the hull. Cost of c:
+
+    |c - w|^2 / max(|w|, escape)^2 + threat_weight * threat(c)
+      + axis_weight * sin^2(angle between c and the hull) + port_penalty (turns to port)
+
+axis_weight (0 for a body that moves any way) is for a hull that cannot move
+sideways (a motorboat): a wish across its hull costs a turn with way on, so
+astern and ahead are preferred. port_penalty makes a symmetric encounter break
+to starboard, as the COLREGs ask (two boats head on both turn right and pass
+port to port). Where the wish itself is not threatened it is kept unchanged
+(the layer is then invisible); otherwise the cheapest candidate is the wish and
+the heading preference is dropped (NaN).
+
+Counted: `interventions` (agent-updates whose wish was changed) and `updates`
+(agent-updates); each change is logged at DEBUG on "behaviors.collision_avoidance".
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from behaviors.base import Behavior, FloatArray, View, Wish
+
+logger = logging.getLogger("behaviors.collision_avoidance")
+TURNS_DEG = (-30.0, 30.0, -60.0, 60.0, -90.0, 90.0)  # negative: clockwise, to starboard
+ESCAPE_DIRECTIONS = 8
+
+
+@dataclass
+class AvoidCollisions(Behavior):
+    """Wrap `inner` so that its agents keep `safe_distance_m` from the neighbours they hear.
+
+    safe_distance_m: the separation to keep, centre to centre, m.
+    range_m: neighbours heard farther than this are ignored, m.
+    horizon_s: how far ahead encounters are predicted, s; samples: prediction times over it.
+    lag_s: time constant of the agent's answer to a new wish, s (the prediction's own motion).
+    escape_speed_mps: speed of the escape candidates, m/s (and the least speed that normalises the deviation).
+    threat_weight: weight of the threat against the deviation from the wish.
+    axis_weight: cost of moving across the hull (sin^2 of the angle off it); 0 for a body that moves any way.
+    port_penalty: cost of a candidate turned to port (COLREG: give way to starboard).
+    """
+
+    inner: Behavior
+    safe_distance_m: float = 2.5
+    range_m: float = 10.0
+    horizon_s: float = 5.0
+    samples: int = 10
+    lag_s: float = 1.5
+    escape_speed_mps: float = 0.5
+    threat_weight: float = 20.0
+    axis_weight: float = 0.0
+    port_penalty: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.safe_distance_m <= self.range_m:
+            raise ValueError("need 0 < safe_distance_m <= range_m")
+        if self.horizon_s <= 0.0 or self.samples < 1 or self.lag_s < 0.0 or self.escape_speed_mps <= 0.0:
+            raise ValueError("need horizon_s > 0, samples >= 1, lag_s >= 0 and escape_speed_mps > 0")
+        if min(self.threat_weight, self.axis_weight, self.port_penalty) < 0.0:
+            raise ValueError("weights must be >= 0")
+        self.name = f"avoid-collisions+{self.inner.name}"
+        self.memory_fields = self.inner.memory_fields
+        self.interventions = 0
+        self.updates = 0
+
+    def candidates(self, wish: FloatArray, heading: FloatArray) -> FloatArray:
+        """(n, C, 2) candidate velocities, m/s: the wish first (module docstring)."""
+        n = wish.shape[0]
+        out = [wish]
+        for degrees in TURNS_DEG:
+            a = np.radians(degrees)
+            out.append(np.column_stack((wish[:, 0] * np.cos(a) - wish[:, 1] * np.sin(a),
+                                        wish[:, 0] * np.sin(a) + wish[:, 1] * np.cos(a))))  # fmt: skip
+        out.append(0.5 * wish)
+        out.append(np.zeros((n, 2)))
+        for k in range(ESCAPE_DIRECTIONS):
+            angle = heading + k * 2.0 * np.pi / ESCAPE_DIRECTIONS
+            out.append(self.escape_speed_mps * np.column_stack((np.cos(angle), np.sin(angle))))
+        return np.stack(out, axis=1)
+
+    def threat(self, view: View, candidates: FloatArray) -> FloatArray:
+        """(n, C) threat of each candidate (module docstring), summed over the neighbours within range_m."""
+        n, c = candidates.shape[:2]
+        d = view.offsets()
+        near = np.einsum("ij,ij->i", d, d) <= self.range_m**2
+        if not near.any():
+            return np.zeros((n, c))
+        i, d = view.pair_i[near], d[near]
+        own = view.table.velocity[view.rows][i]
+        other = view.table.velocity[view.pair_j[near]]
+        own, other = np.nan_to_num(own), np.nan_to_num(other)
+        t = self.horizon_s * np.arange(1, self.samples + 1) / self.samples
+        g = t - self.lag_s * (1.0 - np.exp(-t / self.lag_s)) if self.lag_s > 0 else t
+        drift = d[:, None, :] + (other - own)[:, None, :] * t[None, :, None]  # (M, K, 2)
+        change = candidates[i] - own[:, None, :]  # (M, C, 2)
+        r = drift[:, None, :, :] - change[:, :, None, :] * g[None, None, :, None]  # (M, C, K, 2)
+        distance = np.hypot(r[..., 0], r[..., 1])
+        penalty = (np.maximum(0.0, 1.0 - distance / self.safe_distance_m) ** 2).mean(axis=2)  # (M, C)
+        out = np.empty((n, c))
+        for k in range(c):
+            out[:, k] = np.bincount(i, weights=penalty[:, k], minlength=n)
+        return out
+
+    def step(self, view: View) -> Wish:
+        wish = self.inner.step(view)
+        self.updates += view.n
+        if view.n == 0:
+            return wish
+        velocity = np.nan_to_num(wish.velocity)
+        heading = view.heading
+        options = self.candidates(velocity, np.nan_to_num(heading))
+        threat = self.threat(view, options)
+        threatened = threat[:, 0] > 0.0
+        if not threatened.any():
+            return wish
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        scale = np.maximum(speed, self.escape_speed_mps) ** 2
+        deviation = ((options - velocity[:, None, :]) ** 2).sum(axis=2) / scale[:, None]
+        cost = deviation + self.threat_weight * threat
+        if self.axis_weight > 0.0:
+            along = np.cos(heading)[:, None] * options[..., 0] + np.sin(heading)[:, None] * options[..., 1]
+            norm2 = (options**2).sum(axis=2)
+            across = np.divide(norm2 - along**2, norm2, out=np.zeros_like(norm2), where=norm2 > 1e-12)
+            cost += self.axis_weight * across
+        port = np.array([0.0] + [self.port_penalty if a > 0 else 0.0 for a in TURNS_DEG] + [0.0] * (2 + ESCAPE_DIRECTIONS))
+        cost += port[None, :]
+        best = np.argmin(cost, axis=1)
+        changed = threatened & (best != 0)
+        if not changed.any():
+            return wish
+        self.interventions += int(changed.sum())
+        if logger.isEnabledFor(logging.DEBUG):
+            for row in np.flatnonzero(changed):
+                logger.debug("agent %d at t=%.1f s: wish %s changed to %s (threat %.3f -> %.3f)",
+                             view.table.ids[view.rows[row]], view.t, velocity[row], options[row, best[row]],
+                             threat[row, 0], threat[row, best[row]])  # fmt: skip
+        chosen = options[np.arange(view.n), best]
+        new = np.where(changed[:, None], chosen, wish.velocity)
+        return Wish(new, np.where(changed, np.nan, wish.heading), wish.memory)
