@@ -148,8 +148,7 @@ class AvoidCollisions(Behavior):
             norm2 = (options**2).sum(axis=2)
             across = np.divide(norm2 - along**2, norm2, out=np.zeros_like(norm2), where=norm2 > 1e-12)
             cost += self.axis_weight * across
-        port = np.array([0.0] + [self.port_penalty if a > 0 else 0.0 for a in TURNS_DEG] + [0.0] * (2 + ESCAPE_DIRECTIONS))
-        cost += port[None, :]
+        cost[:, 1 : 1 + len(TURNS_DEG)] += [self.port_penalty if a > 0 else 0.0 for a in TURNS_DEG]
         best = np.argmin(cost, axis=1)
         changed = threatened & (best != 0)
         if not changed.any():

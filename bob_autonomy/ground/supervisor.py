@@ -97,7 +97,7 @@ class Supervisor:
             params["leader_id"] = leader - 1 if leader > 0 else None
             params["goal"] = tuple(self._local(*goals[0])) if goals and leader == 0 else None
         # The configured wrappers (collision and obstacle avoidance) are kept: no parameter carries them.
-        return choice = {key: getattr(self.base, key) for key in BehaviorChoice.model_fields}
+        choice = {key: getattr(self.base, key) for key in BehaviorChoice.model_fields}
         return BehaviorChoice(**{**choice, "behavior": name, "params": params}).build()
 
     def _fence(self) -> np.ndarray | None:
