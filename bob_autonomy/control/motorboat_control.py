@@ -27,7 +27,8 @@ estimator's, a known disturbance): the boat must point along d and move at |d|.
     U = -|d| cos(e0)): a boat backs away from what is in front of it rather
     than circling through its neighbours, or turning across one beside it;
     a faster wish behind, a far goal, is met by turning round;
-  * hold: when |d| is under `hold_speed_mps` (with hysteresis to 1.5 times that)
+  * hold: when |d| is under `hold_speed_mps` (with hysteresis to 1.5 times that, or
+    above it for HOLD_DWELL_S, 3 s, when the time is known: a steady slow wish is meant)
     the boat has nothing useful to do: steering 0, throttle 0 once its way is off
     (a boat still making way through the water faster than hold_speed_mps is
     braked, astern thrust against its surge: coasting on into the boat ahead is
@@ -95,6 +96,10 @@ MIN_TURN_SPEED_MPS = 0.1  # the speed the yaw model is linearised at, at least (
 # between boats; with 0.2 (and the two choices below) about 1 m.
 HOLD_SPEED_MPS = 0.2
 HOLD_HYSTERESIS = 1.5  # a holding boat gets under way again above this times hold_speed_mps (1.25: closer calls)
+# ... or once the wish has stayed above hold_speed_mps for this long, s (when the caller gives the time): without it a
+# steady wish between 1 and 1.5 times the hold speed never gets a holding boat under way (a leader driven at 0.3 m/s
+# against a 0.03 m/s drift, stopped once, stayed stopped for good; a follower pulled at 0.25 m/s never set off).
+HOLD_DWELL_S = 3.0
 TURN_SPEED_FRACTION = 0.1  # the least speed while turning, of the top speed (0.25 swept boats into neighbours faster)
 REVERSE_SPEED_MPS = 1.0  # a wish behind the boat up to this speed through the water is met astern
 ASTERN_FROM_DEG, ASTERN_UNTIL_DEG = 90.0, 70.0  # a wish more than this off the bow starts (keeps) going astern
@@ -234,17 +239,26 @@ class References:
         self.turn_speed_mps = float(turn_speed_fraction) * model.top_speed_mps
         self.reverse_speed_mps = float(reverse_speed_mps)
         self.holding, self.astern, self.turn_side = True, False, 0.0
+        self.above_since: float | None = None  # when the wish of a holding boat rose above hold_speed_mps, s
 
     def reset(self) -> None:
         self.holding, self.astern, self.turn_side = True, False, 0.0
+        self.above_since = None
 
     def __call__(
-        self, desired: tuple[float, float], water: tuple[float, float], heading: float
+        self, desired: tuple[float, float], water: tuple[float, float], heading: float, t_s: float | None = None
     ) -> tuple[float, float, bool]:
-        """(heading error e0 rad, speed reference U m/s (negative: astern), holding)."""
+        """(heading error e0 rad, speed reference U m/s (negative: astern), holding). t_s: the time, s (None: no
+        dwell): a holding boat also gets under way once its wish has stayed above hold_speed_mps for HOLD_DWELL_S."""
         dx, dy = desired[0] - water[0], desired[1] - water[1]
         speed = math.hypot(dx, dy)
         threshold = self.hold_speed_mps * (HOLD_HYSTERESIS if self.holding else 1.0)
+        if self.holding and speed >= self.hold_speed_mps and t_s is not None and math.isfinite(t_s):
+            self.above_since = t_s if self.above_since is None else self.above_since
+            if t_s - self.above_since >= HOLD_DWELL_S:
+                threshold = self.hold_speed_mps
+        else:
+            self.above_since = None
         self.holding = speed < threshold
         if self.holding:
             self.turn_side, self.astern = 0.0, False
@@ -337,11 +351,13 @@ class MotorboatController:
         heading: float,
         yaw_rate: float = 0.0,
         limit: float = 1.0,
+        t_s: float | None = None,
     ) -> MotorboatCommand:
         """The command towards `desired` (world, m/s) from the velocity over ground, the drift (m/s), the heading
-        (rad) and yaw rate (rad/s); `limit`: the throttle available (a weak battery gives less)."""
+        (rad) and yaw rate (rad/s); `limit`: the throttle available (a weak battery gives less); t_s: the time, s
+        (for the hold's dwell, References)."""
         d, v, w, psi = _pair(desired), _pair(velocity), _pair(water), _finite(heading)
-        error, reference, holding = self.references(d, w, psi)
+        error, reference, holding = self.references(d, w, psi, t_s)
         surge = math.cos(psi) * (v[0] - w[0]) + math.sin(psi) * (v[1] - w[1])
         if holding:
             return MotorboatCommand(self.brake(surge, max(0.0, _finite(limit))), 0.0, True, False, 0.0, "hold")
@@ -453,17 +469,20 @@ class MotorboatMpc:
         heading_rad: float,
         yaw_rate_radps: float = 0.0,
         max_throttle: float = 1.0,
+        t_s: float | None = None,
     ) -> MotorboatCommand:
         """The command for one control step.
 
         desired_velocity_mps, velocity_mps (estimated, over ground), water_velocity_mps (drift, estimated): (2,)
         world frame, m/s (non-finite entries count as 0). heading_rad, yaw_rate_radps: estimated (non-finite: 0).
         max_throttle: the throttle available, [0, 1] (a weak battery gives less).
+        t_s: the time, s (None: none known): a holding boat whose wish stays above the hold speed for HOLD_DWELL_S
+        gets under way (References).
         """
         d, v, w = _pair(desired_velocity_mps), _pair(velocity_mps), _pair(water_velocity_mps)
         psi, r0 = _finite(heading_rad), _finite(yaw_rate_radps)
         limit = min(max(_finite(max_throttle), 0.0), 1.0)
-        error, reference, holding = self.references(d, w, psi)
+        error, reference, holding = self.references(d, w, psi, t_s)
         u0 = math.cos(psi) * (v[0] - w[0]) + math.sin(psi) * (v[1] - w[1])
         if holding or limit <= 1e-9:
             throttle = self.fallback.brake(u0, limit)

@@ -420,9 +420,9 @@ class MotorboatPipeline(BuoyPipeline):
         for k in range(self.n):
             args = (wish_mps[k], estimate.velocity[k], water[k], estimate.heading[k], rate[k])
             if self.use_mpc:
-                cmd = self.mpcs[k].solve(*args, max_throttle=self.max_throttle[k])
+                cmd = self.mpcs[k].solve(*args, max_throttle=self.max_throttle[k], t_s=t_s)
             else:
-                cmd = self.controllers[k].command(*args, limit=self.max_throttle[k])
+                cmd = self.controllers[k].command(*args, limit=self.max_throttle[k], t_s=t_s)
             self.last_commands[k] = cmd
             out[k] = cmd.throttle, cmd.steering
         heading = np.nan_to_num(estimate.heading)
