@@ -23,9 +23,14 @@ Candidates: the wish w; w turned 30, 60, 90 deg either way; w at half speed;
 stopping; `escape_speed_mps` in 8 directions, two of them ahead and astern along
 the hull. Cost of c:
 
-    |c - w|^2 / max(|w|, escape)^2 + threat_weight * threat(c)
+    (|c - w|^2 + slowdown_weight * max(0, |w| - |c|)^2) / max(|w|, escape)^2 + threat_weight * threat(c)
       + axis_weight * sin^2(angle between c and the hull) + port_penalty (turns to port)
 
+slowdown_weight makes losing speed dearer than turning, as the COLREGs' rule 8
+prefers an early alteration of course with sea room: with it (2, the default)
+two agents head on turn to starboard and pass; without it the cheapest answer
+of each is to slow down, and they end stopped face to face 2.5 m apart (a
+90 deg turn, |c - w|^2 = 2 |w|^2, then costs more than stopping).
 axis_weight (0 for a body that moves any way) is for a hull that cannot move
 sideways (a motorboat): a wish across its hull costs a turn with way on, so
 astern and ahead are preferred. port_penalty makes a symmetric encounter break
@@ -62,6 +67,7 @@ class AvoidCollisions(Behavior):
     lag_s: time constant of the agent's answer to a new wish, s (the prediction's own motion).
     escape_speed_mps: speed of the escape candidates, m/s (and the least speed that normalises the deviation).
     threat_weight: weight of the threat against the deviation from the wish.
+    slowdown_weight: extra weight of the speed lost, against turning (COLREG rule 8; module docstring).
     axis_weight: cost of moving across the hull (sin^2 of the angle off it); 0 for a body that moves any way.
     port_penalty: cost of a candidate turned to port (COLREG: give way to starboard).
     """
@@ -73,7 +79,8 @@ class AvoidCollisions(Behavior):
     samples: int = 10
     lag_s: float = 1.5
     escape_speed_mps: float = 0.5
-    threat_weight: float = 20.0
+    threat_weight: float = 100.0
+    slowdown_weight: float = 2.0
     axis_weight: float = 0.0
     port_penalty: float = 0.05
 
@@ -82,7 +89,7 @@ class AvoidCollisions(Behavior):
             raise ValueError("need 0 < safe_distance_m <= range_m")
         if self.horizon_s <= 0.0 or self.samples < 1 or self.lag_s < 0.0 or self.escape_speed_mps <= 0.0:
             raise ValueError("need horizon_s > 0, samples >= 1, lag_s >= 0 and escape_speed_mps > 0")
-        if min(self.threat_weight, self.axis_weight, self.port_penalty) < 0.0:
+        if min(self.threat_weight, self.slowdown_weight, self.axis_weight, self.port_penalty) < 0.0:
             raise ValueError("weights must be >= 0")
         self.name = f"avoid-collisions+{self.inner.name}"
         self.memory_fields = self.inner.memory_fields
@@ -141,8 +148,9 @@ class AvoidCollisions(Behavior):
             return wish
         speed = np.hypot(velocity[:, 0], velocity[:, 1])
         scale = np.maximum(speed, self.escape_speed_mps) ** 2
-        deviation = ((options - velocity[:, None, :]) ** 2).sum(axis=2) / scale[:, None]
-        cost = deviation + self.threat_weight * threat
+        lost = np.maximum(0.0, speed[:, None] - np.hypot(options[..., 0], options[..., 1]))
+        deviation = ((options - velocity[:, None, :]) ** 2).sum(axis=2) + self.slowdown_weight * lost**2
+        cost = deviation / scale[:, None] + self.threat_weight * threat
         if self.axis_weight > 0.0:
             along = np.cos(heading)[:, None] * options[..., 0] + np.sin(heading)[:, None] * options[..., 1]
             norm2 = (options**2).sum(axis=2)
