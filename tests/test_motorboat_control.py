@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from bob_autonomy.control.motorboat_control import (
+    HOLD_DWELL_S,
     HOLD_SPEED_MPS,
     TURN_SPEED_FRACTION,
     MotorboatController,
@@ -142,6 +143,24 @@ def test_a_small_wish_holds_with_hysteresis_and_a_weak_battery_limits_the_thrott
     assert mpc.solve(np.array([1.6 * hold, 0.0]), np.zeros(2), np.zeros(2), 0.0).status == "optimal"
     cmd = mpc.solve(np.array([2.0, 0.0]), np.zeros(2), np.zeros(2), 0.0, max_throttle=0.4)
     assert 0.0 < cmd.throttle <= 0.4
+
+
+@pytest.mark.parametrize("kind", ["mpc", "simple"])
+def test_a_steady_wish_between_the_hold_speed_and_its_hysteresis_gets_a_holding_boat_under_way(kind) -> None:
+    # A leader driven at 0.3 m/s against a 0.03 m/s drift wishes 0.27 m/s through the water: under 1.5 x the hold
+    # speed, so once held (stopped by collision avoidance) it stayed held for good. Held for HOLD_DWELL_S, it goes.
+    def statuses(times, wish=1.35 * HOLD_SPEED_MPS):
+        controller = MotorboatMpc(MODEL) if kind == "mpc" else MotorboatController(MODEL)
+        solve = controller.solve if kind == "mpc" else controller.command
+        return [solve(np.array([w, 0.0]), np.zeros(2), np.zeros(2), 0.0, t_s=t).status
+                for t, w in zip(times, np.broadcast_to(wish, len(times)), strict=True)]  # fmt: skip
+    steps = np.arange(0.0, HOLD_DWELL_S + 1.0, 0.5)
+    held = [status == "hold" for status in statuses(steps)]
+    assert all(held[: int(HOLD_DWELL_S / 0.5)]) and not any(held[int(HOLD_DWELL_S / 0.5) :])
+    # a dip under the hold speed starts the dwell again; without the time there is no dwell (the 1.5x hysteresis)
+    dipped = statuses(steps, np.where(steps == 2.0, 0.5 * HOLD_SPEED_MPS, 1.35 * HOLD_SPEED_MPS))
+    assert dipped[-1] == "hold"
+    assert statuses([None] * 20)[-1] == "hold"
 
 
 def test_a_failed_or_late_solve_falls_back_counted_and_bad_inputs_never_escape() -> None:
