@@ -154,6 +154,7 @@ def test_a_steady_wish_between_the_hold_speed_and_its_hysteresis_gets_a_holding_
         solve = controller.solve if kind == "mpc" else controller.command
         return [solve(np.array([w, 0.0]), np.zeros(2), np.zeros(2), 0.0, t_s=t).status
                 for t, w in zip(times, np.broadcast_to(wish, len(times)), strict=True)]  # fmt: skip
+
     steps = np.arange(0.0, HOLD_DWELL_S + 1.0, 0.5)
     held = [status == "hold" for status in statuses(steps)]
     assert all(held[: int(HOLD_DWELL_S / 0.5)]) and not any(held[int(HOLD_DWELL_S / 0.5) :])
