@@ -457,6 +457,9 @@ def test_behavior_parameters_for_set_behavior_events() -> None:
         behavior_parameters(base, BehaviorChoice(behavior="bob-rule", params={"p0": 5.0, "nearest": 5}), ORIGIN)
     with pytest.raises(ScenarioError, match="obstacle avoidance"):
         behavior_parameters(base, BehaviorChoice(behavior="bob-rule", params=base.params, avoid_obstacles=True), ORIGIN)
+    with pytest.raises(ScenarioError, match="collision avoidance"):
+        colliding = BehaviorChoice(behavior="bob-rule", params=base.params, avoid_collisions=True)
+        behavior_parameters(base, colliding, ORIGIN)
 
 
 # ---------------------------------------------------------------- (d) end to end with bob-autonomy run

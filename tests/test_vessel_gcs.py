@@ -80,6 +80,18 @@ def test_parameters_select_and_rebuild_the_behaviour() -> None:
     assert sup.behavior().name == "hold-position"
 
 
+def test_a_behaviour_rebuilt_from_the_parameters_keeps_the_configured_collision_avoidance() -> None:
+    store = ParameterStore()
+    base = BehaviorChoice(behavior="bob-rule", params={"p0": 10.0}, avoid_collisions=True,
+                          collision_params={"safe_distance_m": 2.0})  # fmt: skip
+    store.set_many(behavior_params(base, FRAME))
+    sup = Supervisor(store, base, FRAME)
+    sup.params.set("BOB_P0_M", 5.0)
+    behavior = sup.behavior()
+    assert behavior.name == "avoid-collisions+bob-rule" and behavior.safe_distance_m == 2.0
+    assert behavior.inner.p0 == 5.0
+
+
 def test_stopped_or_gcs_lost_holds_and_rally_returns() -> None:
     sup = _supervisor(BOB_GCS_FS_ACT=2, BOB_RALLY_LAT=_latlon(0.0, -50.0)[0], BOB_RALLY_LON=_latlon(0.0, -50.0)[1])
     wish = np.array([1.0, 0.0])
