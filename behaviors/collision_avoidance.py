@@ -170,3 +170,12 @@ class AvoidCollisions(Behavior):
         chosen = options[np.arange(view.n), best]
         new = np.where(changed[:, None], chosen, wish.velocity)
         return Wish(new, np.where(changed, np.nan, wish.heading), wish.memory)
+
+
+def collision_layer(behavior: Behavior) -> AvoidCollisions | None:
+    """The AvoidCollisions in `behavior`'s chain of wrappers (`inner`), or None when it has none."""
+    while not isinstance(behavior, AvoidCollisions):
+        behavior = getattr(behavior, "inner", None)
+        if behavior is None:
+            return None
+    return behavior

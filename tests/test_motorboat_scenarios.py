@@ -139,6 +139,7 @@ def test_motorboats_follow_a_leader_boat_in_separate_processes(tmp_path) -> None
     assert m["processes"]["exit_codes"] == [0] * 4 and m["processes"]["killed"] == 0
     assert m["leader_path_m"] >= 70.0
     assert m["closest_approach_m"] >= 1.0
+    assert m["collision_avoidance"]["updates"] > 0 and len(m["collision_avoidance"]["by_vessel"]) == 4
     assert m["vehicles"]["refused"] == 0
     start, end = result.recorder.frames[0].position, result.recorder.frames[-1].position
     leader_end = end[0]

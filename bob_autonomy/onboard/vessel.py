@@ -28,6 +28,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from behaviors.base import Senses
+from behaviors.collision_avoidance import collision_layer
 from bob_autonomy.control.motorboat_control import MotorboatModel
 from bob_autonomy.control.velocity_control import BuoyModel
 from bob_autonomy.core.agent import Agent
@@ -178,6 +179,10 @@ class VesselStats:
     routed_to_vehicle: int = 0
     estimator_resets: int = 0
     mpc_fallbacks: int = 0  # control steps whose MPC fell back to the proportional command (bob_autonomy.control.mpc)
+    # Behaviour updates whose wish collision avoidance changed, of those it saw (behaviors.collision_avoidance; the
+    # behaviour in use at the end: a rebuild from new parameters starts them again).
+    collision_interventions: int = 0
+    collision_updates: int = 0
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
     gcs: dict[str, int] = field(default_factory=dict)  # the GCS component's rejected-input counters, at the end
@@ -459,6 +464,9 @@ class Vessel(VesselLinks, AutopilotDriving):
             self.tlog.close()
         self.stats.gcs = self.gcs.log_counters()
         self.stats.mpc_fallbacks = sum(getattr(m, "fallbacks", 0) for m in getattr(self.pipeline, "mpcs", ()))
+        layer = collision_layer(self.agent.behavior) if hasattr(self, "agent") else None
+        if layer is not None:
+            self.stats.collision_interventions, self.stats.collision_updates = layer.interventions, layer.updates
         # One JSON line that process fleets read back (sitl.fleets.vessel_logs) for metrics.json.
         logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))
         if isinstance(self.network, ThrottledMesh):  # what the mesh refused, and why (docs/mesh.md)

@@ -25,7 +25,7 @@ from typing import TypeVar
 import numpy as np
 from tqdm import tqdm
 
-from behaviors.collision_avoidance import AvoidCollisions
+from behaviors.collision_avoidance import collision_layer
 from sitl.experiments.metrics import METRICS
 from sitl.experiments.plots import write_figures
 from sitl.experiments.recorder import Frame, Recorder
@@ -89,11 +89,10 @@ def collision_counters(fleet: LockstepFleet) -> dict[str, dict[str, int]]:
     (`interventions`) of how many (`updates`); {} when no behaviour has it."""
     out = {}
     for k, behavior in enumerate(fleet.behaviors):
-        while not isinstance(behavior, AvoidCollisions) and hasattr(behavior, "inner"):
-            behavior = behavior.inner
-        if isinstance(behavior, AvoidCollisions):
+        layer = collision_layer(behavior)
+        if layer is not None:
             name = fleet.group_names[k] if k < len(fleet.group_names) else f"event-{k - len(fleet.group_names)}"
-            out[name] = {"interventions": behavior.interventions, "updates": behavior.updates}
+            out[name] = {"interventions": layer.interventions, "updates": layer.updates}
     return out
 
 

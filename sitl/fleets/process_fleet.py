@@ -61,7 +61,7 @@ from sitl.fleets.process_supervision import (
     Process,
     StopReport,
 )
-from sitl.fleets.vessel_logs import gcs_counters
+from sitl.fleets.vessel_logs import collision_counters, gcs_counters
 from sitl.radio.mesh_security import mesh_log_counters
 from sitl.radio.radio_relay import DEFAULT_MESH_PORT, RadioRelay
 from sitl.vehicles.bodies import BODY_KINDS
@@ -418,6 +418,9 @@ class ProcessFleet(ProcessLifecycle, ProcessEvents):
         metrics["vehicles"] = {**self.server.counters(), "tlog_frames": self.tlog.frames}
         metrics["gcs"] = gcs_counters({i + 1: self.out / f"vessel-{i + 1:02d}.log" for i in range(self.n)})
         metrics["mesh"] = mesh_log_counters({i + 1: self.out / f"vessel-{i + 1:02d}.log" for i in range(self.n)})
+        avoidance = collision_counters({i + 1: self.out / f"vessel-{i + 1:02d}.log" for i in range(self.n)})
+        if avoidance:
+            metrics["collision_avoidance"] = avoidance
         metrics["processes"] = {
             "exit_codes": self.exit_codes,
             "killed": self.killed,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from bob_autonomy.ground.gcs import GcsCounters
 
-__all__ = ["gcs_counters", "stopped_summary"]
+__all__ = ["collision_counters", "gcs_counters", "stopped_summary"]
 
 _STOPPED = re.compile(r"vessel (\d+) stopped: (\{.*\})\s*$")
 
@@ -57,3 +57,19 @@ def gcs_counters(logs: Mapping[int, Path]) -> dict:
         for name, value in counters.items():
             total[name] += value
     return {"total": total, "by_vessel": by_vessel, "unreported": unreported}
+
+
+def collision_counters(logs: Mapping[int, Path]) -> dict:
+    """What collision avoidance (behaviors.collision_avoidance) did in a fleet, from the logs of its vessels (system
+    id -> log file): `interventions` (updates whose wish it changed) and `updates` summed over the vessels that
+    reported, and `by_vessel` (system id as text: [interventions, updates]); {} when no vessel ran it."""
+    by_vessel: dict[str, list[int]] = {}
+    for system_id, log in sorted(logs.items()):
+        summary = stopped_summary(log) or {}
+        updates = int(summary.get("collision_updates", 0))
+        if updates:
+            by_vessel[str(system_id)] = [int(summary.get("collision_interventions", 0)), updates]
+    if not by_vessel:
+        return {}
+    total = [sum(counts[k] for counts in by_vessel.values()) for k in (0, 1)]
+    return {"interventions": total[0], "updates": total[1], "by_vessel": by_vessel}
