@@ -36,8 +36,21 @@ sideways (a motorboat): a wish across its hull costs a turn with way on, so
 astern and ahead are preferred. port_penalty makes a symmetric encounter break
 to starboard, as the COLREGs ask (two boats head on both turn right and pass
 port to port). Where the wish itself is not threatened it is kept unchanged
-(the layer is then invisible); otherwise the cheapest candidate is the wish and
-the heading preference is dropped (NaN).
+(the layer is then invisible); otherwise the cheapest candidate becomes the wish
+(it may be the wish itself) and, if it changed, the heading preference is
+dropped (NaN).
+
+Why here, in the behaviour layer, and not in the controller: avoiding a
+neighbour needs the neighbours, and only a behaviour sees them (the View: their
+positions and velocities as heard over the mesh); the controller sees one boat's
+wish and state. As a wrapper it runs the same on a vessel (a table of one agent
+and those it hears) and in a simulated swarm, for any behaviour, a driven
+leader's `waypoints` too. How a changed wish is met is the controller's: a
+motorboat brakes astern for a stop, backs for an escape astern, turns for a turn
+(bob_autonomy.control.motorboat_control).
+
+Not modelled: the age of what is heard (up to a broadcast period; the safe
+distance has to cover it, with the GPS error between two receivers).
 
 Counted: `interventions` (agent-updates whose wish was changed) and `updates`
 (agent-updates); each change is logged at DEBUG on "behaviors.collision_avoidance".
