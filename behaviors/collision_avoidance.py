@@ -125,27 +125,38 @@ class AvoidCollisions(Behavior):
         return np.stack(out, axis=1)
 
     def threat(self, view: View, candidates: FloatArray) -> FloatArray:
-        """(n, C) threat of each candidate (module docstring), summed over the neighbours within range_m."""
+        """(n, C) threat of each candidate (module docstring), summed over the neighbours within range_m; only
+        the wish's (column 0) where the wish is not threatened (the others are then never looked at: 0)."""
         n, c = candidates.shape[:2]
+        out = np.zeros((n, c))
         d = view.offsets()
         near = np.einsum("ij,ij->i", d, d) <= self.range_m**2
         if not near.any():
-            return np.zeros((n, c))
+            return out
         i, d = view.pair_i[near], d[near]
-        own = view.table.velocity[view.rows][i]
-        other = view.table.velocity[view.pair_j[near]]
-        own, other = np.nan_to_num(own), np.nan_to_num(other)
+        own = np.nan_to_num(view.table.velocity[view.rows][i])
+        other = np.nan_to_num(view.table.velocity[view.pair_j[near]])
         t = self.horizon_s * np.arange(1, self.samples + 1) / self.samples
         g = t - self.lag_s * (1.0 - np.exp(-t / self.lag_s)) if self.lag_s > 0 else t
         drift = d[:, None, :] + (other - own)[:, None, :] * t[None, :, None]  # (M, K, 2)
-        change = candidates[i] - own[:, None, :]  # (M, C, 2)
+        out[:, 0] = np.bincount(
+            i, weights=self._penalty(drift, candidates[i, :1] - own[:, None, :], g)[:, 0], minlength=n
+        )
+        # The other candidates, for the pairs of the agents whose wish is threatened (a few): same sums, fewer pairs.
+        keep = out[i, 0] > 0.0
+        if keep.any():
+            i, own = i[keep], own[keep]
+            penalty = self._penalty(drift[keep], candidates[i] - own[:, None, :], g)  # (M', C)
+            for k in range(c):
+                out[:, k] = np.bincount(i, weights=penalty[:, k], minlength=n)
+        return out
+
+    def _penalty(self, drift: FloatArray, change: FloatArray, g: FloatArray) -> FloatArray:
+        """(M, C) mean over the samples of max(0, 1 - |r| / safe_distance_m)^2, r = drift (M, K, 2) - change
+        (M, C, 2) g (K,)."""
         r = drift[:, None, :, :] - change[:, :, None, :] * g[None, None, :, None]  # (M, C, K, 2)
         distance = np.hypot(r[..., 0], r[..., 1])
-        penalty = (np.maximum(0.0, 1.0 - distance / self.safe_distance_m) ** 2).mean(axis=2)  # (M, C)
-        out = np.empty((n, c))
-        for k in range(c):
-            out[:, k] = np.bincount(i, weights=penalty[:, k], minlength=n)
-        return out
+        return (np.maximum(0.0, 1.0 - distance / self.safe_distance_m) ** 2).mean(axis=2)
 
     def step(self, view: View) -> Wish:
         wish = self.inner.step(view)
