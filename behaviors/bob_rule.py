@@ -40,6 +40,26 @@ paper's (N_i all neighbours heard), so F = 0 is eq. (5) exactly. With
 hull heading while it is still); a still neighbour's course (zero velocity, a
 zero term in the sum) counts as equal to the agent's own and is never left out.
 
+Neighbourhood of the pair term (`shell_range` > 0, beyond the paper, which
+leaves N_i as "the neighbours"): f tends to 1 beyond p0, so every neighbour in
+N_i beyond the first shell pulls, and a large N_i squeezes a lattice well below
+p0: with all 44 others heard, 45 agents settle at about 0.33 p0 (a 100 m2 hull
+at p0 = 5 m). A topological N_i of the k nearest squeezes less but lets the
+swarm split into isolated groups of k + 1 or more (with k = 20, two groups of
+about 22 whose distance apart, not the lattice, made the hull). With
+`shell_range`, an agent that is inside a lattice, at least `lattice_min` agents
+heard within `lattice_range` * p0, counts only those within `shell_range` * p0
+(its own shell, where f balances at p0); an agent that is not (alone, or the
+swarm spread far wider than p0, as just after p0 drops) counts every agent
+heard (or its `nearest`), so it is drawn toward the group as a whole, which
+contracts keeping each agent's bearing from the centre (as the paper's field
+test notes). Eq. (5) is unchanged; only the set N_i is chosen. shell_range
+1.3 lies between a hexagonal lattice's first ring (p0) and its second (sqrt(3)
+p0), so the second ring enters the shell only once the spacing is below 0.75
+p0. With shell_range 1.3, lattice_range 2, lattice_min 6, 45 buoys aggregate at
+p0 = 5 m into one blob spaced about 0.9 p0 (hull ~800-1,050 m2, physics, seeds
+1-10; see the aggregation scenario).
+
 An agent that hears nobody has zero pair and consensus terms. Uses:
 aggregation is BobRule(H=0); goal seeking BobRule(H=1, goal=(x, y));
 leader-follower BobRule(H=1, leader_id=k): the goal is the position of agent
@@ -98,6 +118,11 @@ class BobRule(Behavior):
         segment i-j as diameter): a local, Voronoi-like neighbourhood that keeps
         the swarm connected and gives a lattice spaced about p0, where all heard
         neighbours pull a large swarm much tighter than p0.
+    shell_range: if positive, N_i of an agent inside a lattice is only the
+        agents heard within shell_range * p0 (m); 0: not used (see the module
+        docstring). An agent is inside a lattice when it hears at least
+        `lattice_min` agents within `lattice_range` * p0 (m); otherwise N_i is
+        every agent heard, or its `nearest`.
 
     resilient_f: F of the W-MSR rule applied to the consensus sum (H = 1): up to
         F headings heard within p0 on each side of the agent's own are left out
@@ -118,8 +143,18 @@ class BobRule(Behavior):
     align_course: bool = False
     skirt: bool = False
     resilient_f: int = 0
+    shell_range: float = 0.0
+    lattice_range: float = 2.0
+    lattice_min: int = 6
 
     def __post_init__(self) -> None:
+        if self.shell_range < 0.0 or self.lattice_range <= 0.0 or self.lattice_min < 1:
+            raise ValueError(
+                f"shell_range must be >= 0, lattice_range > 0 and lattice_min >= 1, not "
+                f"{self.shell_range!r}, {self.lattice_range!r}, {self.lattice_min!r}"
+            )
+        if self.shell_range and self.gabriel:
+            raise ValueError("shell_range and gabriel are two different neighbourhoods: give one")
         if not isinstance(self.resilient_f, int | np.integer) or self.resilient_f < 0:
             raise ValueError(f"resilient_f must be a whole number >= 0, not {self.resilient_f!r}")
         if self.H not in (0, 1):
@@ -133,7 +168,13 @@ class BobRule(Behavior):
 
     def step(self, view: View) -> Wish:
         goal = self.goals(view)
-        if self.nearest is not None:
+        if self.shell_range > 0.0:
+            view = view.restrict(
+                shell_pairs(
+                    view, self.shell_range * self.p0, self.lattice_range * self.p0, self.lattice_min, self.nearest
+                )
+            )
+        elif self.nearest is not None:
             view = view.restrict(nearest_pairs(view, self.nearest))
         if self.gabriel:
             view = view.restrict(gabriel_pairs(view))
@@ -212,6 +253,19 @@ def skirt_term(repulsion: FloatArray, pull: FloatArray) -> FloatArray:
     blocked = np.maximum(0.0, -np.einsum("ij,ij->i", pull, away))
     left_of_neighbours = np.column_stack((away[:, 1], -away[:, 0]))
     return blocked[:, None] * left_of_neighbours
+
+
+def shell_pairs(view: View, shell_m: float, lattice_m: float, lattice_min: int, nearest: int | None) -> np.ndarray:
+    """(M,) mask of the pairs in N_i with `shell_range` (see the module docstring).
+
+    A listener with at least `lattice_min` pairs within lattice_m (m) keeps its pairs within shell_m (m);
+    any other keeps all its pairs, or its `nearest` closest if that is set.
+    """
+    d = view.offsets()
+    d2 = np.einsum("ij,ij->i", d, d)
+    in_lattice = np.bincount(view.pair_i, weights=d2 <= lattice_m**2, minlength=view.n) >= lattice_min
+    wide = np.ones(d2.size, dtype=bool) if nearest is None else nearest_pairs(view, nearest)
+    return np.where(in_lattice[view.pair_i], d2 <= shell_m**2, wide)
 
 
 def nearest_pairs(view: View, k: int) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -311,3 +312,59 @@ def test_with_skirt_the_agent_goes_around_the_wall_to_its_goal() -> None:
     assert crossing.size and np.all(path[crossing, 0] < -30.0)
     wall = np.column_stack((np.arange(-30.0, 31.0, 6.0), np.zeros(11)))
     assert np.hypot(*(path[:, None, :] - wall[None]).transpose(2, 0, 1)).min() > 3.0
+
+
+# --- shell_range: N_i is the agent's own shell once it is inside a lattice (see behaviors/bob_rule.py) ---
+
+
+def _hexagon_and_far_agent(far: list[float]) -> tuple[SwarmTable, object]:
+    """Agent 0 at the origin, six agents at 10 m (= P0) at 0, 60, ..., 300 deg, and one more at `far`."""
+    from behaviors.base import Senses, View
+
+    ring = [[10.0 * math.cos(k * math.pi / 3), 10.0 * math.sin(k * math.pi / 3)] for k in range(6)]
+    table = make_table([[0.0, 0.0], *ring, far])
+    view = View(table, Senses.none(8), np.array([0]), np.zeros(7, dtype=np.intp), np.arange(1, 8))
+    return table, view
+
+
+def test_inside_a_lattice_only_the_shell_counts() -> None:
+    # Six heard within 2 P0 = 20 m (>= lattice_min 6): N_0 is those within 1.5 P0 = 15 m, the ring at P0,
+    # where f = 0: v = 0. The agent at (30, 0) is left out; with every agent heard it pulls:
+    # f = 1 - 100/900 = 8/9 along (1, 0), N = 7 -> (8/63, 0).
+    from behaviors.bob_rule import shell_pairs
+
+    _, view = _hexagon_and_far_agent([30.0, 0.0])
+    assert shell_pairs(view, 15.0, 20.0, 6, None).tolist() == [True] * 6 + [False]
+    shell = rule(H=0, shell_range=1.5, lattice_range=2.0, lattice_min=6).step(view)
+    everyone = rule(H=0).step(view)
+    assert_allclose(shell.velocity, [[0.0, 0.0]], atol=1e-12)
+    assert_allclose(everyone.velocity, [[8.0 / 63.0, 0.0]], atol=1e-12)
+
+
+def test_outside_a_lattice_every_agent_heard_counts_or_the_nearest() -> None:
+    # lattice_min 7: only six within 20 m, so agent 0 is not inside a lattice and counts all seven heard
+    # (as without shell_range), or with nearest = 6 the ring only.
+    from behaviors.bob_rule import shell_pairs
+
+    _, view = _hexagon_and_far_agent([30.0, 0.0])
+    assert shell_pairs(view, 15.0, 20.0, 7, None).all()
+    assert shell_pairs(view, 15.0, 20.0, 7, 6).tolist() == [True] * 6 + [False]
+    wide = rule(H=0, shell_range=1.5, lattice_range=2.0, lattice_min=7).step(view)
+    assert_allclose(wide.velocity, [[8.0 / 63.0, 0.0]], atol=1e-12)
+    # A seventh agent at (0, 18) is also within 20 m: now inside a lattice, and the one at 18 m is outside
+    # the shell (15 m): v = 0 again.
+    table = make_table([[0.0, 0.0], *view.table.position[1:7].tolist(), [0.0, 18.0]])
+    closer = replace(view, table=table)
+    assert shell_pairs(closer, 15.0, 20.0, 7, None).tolist() == [True] * 6 + [False]
+
+
+def test_shell_range_is_batch_equivalent_and_checked() -> None:
+    assert_batch_equivalent(rule(H=0, shell_range=1.5, lattice_min=2), make_view(make_table(SWARM), pairs=SWARM_PAIRS))
+    for bad in (
+        {"shell_range": -1.0},
+        {"lattice_range": 0.0},
+        {"lattice_min": 0},
+        {"shell_range": 1.5, "gabriel": True},
+    ):
+        with pytest.raises(ValueError):
+            BobRule(**bad)  # type: ignore[arg-type]
