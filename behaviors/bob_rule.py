@@ -56,7 +56,11 @@ contracts keeping each agent's bearing from the centre (as the paper's field
 test notes). Eq. (5) is unchanged; only the set N_i is chosen. shell_range
 1.3 lies between a hexagonal lattice's first ring (p0) and its second (sqrt(3)
 p0), so the second ring enters the shell only once the spacing is below 0.75
-p0. With shell_range 1.3, lattice_range 2, lattice_min 6, 45 buoys aggregate at
+p0. Every member of a hexagonal lattice of 19 or more spaced p0 hears 8 or more
+agents within 2 p0, and a group of fewer than 7 cannot be all inside a lattice
+with lattice_min 6, so such a group does not hold apart from the swarm (a group
+of 7 or more could; the contraction toward the whole swarm makes it rare).
+With shell_range 1.3, lattice_range 2, lattice_min 6, 45 buoys aggregate at
 p0 = 5 m into one blob spaced about 0.9 p0 (hull ~800-1,050 m2, physics, seeds
 1-10; see the aggregation scenario).
 
