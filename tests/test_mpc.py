@@ -287,6 +287,33 @@ def test_ebot_default_form_backs_up_to_a_wish_almost_behind() -> None:
     assert np.mean(errors) < 0.02  # a U-turn averages 0.056 m/s
 
 
+@pytest.mark.parametrize("form", ["linear", "nonlinear"])
+def test_ebot_forward_only_turns_on_the_spot_instead_of_backing_up(form: str) -> None:
+    # The same wish 160 degrees round, for a robot that must face where it goes (a wished heading): no planned
+    # step ever runs backwards; it pivots (wheels opposite, forward speed 0) and then drives off facing the wish.
+    mpc = DiffDriveMpc(form=form, time_budget_s=RELAXED_BUDGET_S)
+    desired = 0.2 * np.array([math.cos(math.radians(160)), math.sin(math.radians(160))])
+    heading, wheels = 0.0, np.array([0.2, 0.2])
+    for k in range(30):
+        wheels = mpc.solve(desired, heading, wheels if k == 0 else None, forward_only=True).wheels_mps
+        assert 0.5 * (wheels[0] + wheels[1]) >= -1e-6
+        assert np.all(0.5 * (mpc._plan[0::2] + mpc._plan[1::2]) >= -1e-6)  # the whole plan, not only its first step
+        heading += (wheels[1] - wheels[0]) / 0.1 * 0.1
+    assert abs(heading - math.radians(160)) < math.radians(1.0)
+    assert np.all(wheels > 0.19), "then it drives forwards"
+
+
+def test_ebot_forward_only_holds_for_random_wishes() -> None:
+    mpc = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        previous = None if rng.random() < 0.3 else rng.uniform(-0.2, 0.2, 2)
+        result = mpc.solve(rng.uniform(-0.3, 0.3, 2), rng.uniform(-math.pi, math.pi), previous, forward_only=True)
+        assert result.ok
+        assert result.wheels_mps.sum() >= -1e-6
+        assert np.all(np.abs(result.wheels_mps) <= 0.2 + 1e-12)
+
+
 def test_ebot_forced_failure_gives_the_heuristic_fallback(monkeypatch, caplog) -> None:
     mpc = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
     monkeypatch.setattr(mpc, "_solve_plan", _raise)

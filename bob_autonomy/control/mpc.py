@@ -549,7 +549,10 @@ class DiffDriveMpc:
     the buoy), re-linearized every call. sbar takes the sign of the desired
     forward component (reversing is allowed: a velocity vector behind can be
     tracked backwards), keeping the previous sign when that component is small
-    (|d_x| < 0.1 |d|) so a sideways wish does not chatter.
+    (|d_x| < 0.1 |d|) so a sideways wish does not chatter. With forward_only
+    (a robot that must face where it goes) sbar > 0 and every step's forward
+    speed is constrained to >= 0 (one linear row per step): a wish behind
+    makes it pivot on the spot, then drive.
     form="nonlinear": the unicycle model as is, casadi nlpsol (ipopt or
     sqpmethod), warm-started from the previous plan shifted by one step.
 
@@ -640,20 +643,26 @@ class DiffDriveMpc:
             cost += self.tracking_weight * ca.sumsqr(velocity - desired) / vmax**2
             cost += self.input_change_weight * ca.sumsqr(zk - previous)
             delta, previous = delta + turn, zk
-        return {"x": z, "p": p, "f": cost}
+        # g: the forward speed of each step, scaled (>= 0 when the robot must face along its wish).
+        forward_speeds = ca.vertcat(*[0.5 * (z[2 * k] + z[2 * k + 1]) for k in range(self.horizon)])
+        return {"x": z, "p": p, "f": cost, "g": forward_speeds}
 
     def _build_linear(self) -> None:
         problem = self._model(linear=True)
         z, p, cost = problem["x"], problem["p"], problem["f"]
         hessian = ca.hessian(cost, z)[0]
         gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
+        constraints = ca.jacobian(problem["g"], z)
         data = ca.Function("ebot_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(
-            _conic("ebot_mpc_qp", self.solver, hessian.sparsity(), ca.Sparsity(0, z.shape[0])), self._data.outputs
+            _conic("ebot_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()), self._data.outputs
         )
+        self._qp.inputs["a"][:] = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
         self._qp.inputs["lbx"][:] = -1.0
         self._qp.inputs["ubx"][:] = 1.0
+        self._qp.inputs["lba"][:] = -1.0  # inactive (wheels within +-1); 0 when forward only
+        self._qp.inputs["uba"][:] = 1.0
         self.problem = problem
 
     def _build_nonlinear(self) -> None:
@@ -677,6 +686,8 @@ class DiffDriveMpc:
         self._nlp = ca.nlpsol("ebot_mpc_nlp", self.nlp_solver, problem, options)
         self._lbx = -np.ones(2 * self.horizon)
         self._ubx = np.ones(2 * self.horizon)
+        self._lbg = -np.ones(self.horizon)
+        self._ubg = np.ones(self.horizon)
         self.problem = problem
 
     def reset(self) -> None:
@@ -685,42 +696,60 @@ class DiffDriveMpc:
         self._plan = np.zeros(2 * self.horizon)
         self._sign = 1.0
 
-    def _parameters(self, desired_world: FloatArray, heading: float, previous: FloatArray) -> FloatArray:
+    def _parameters(
+        self, desired_world: FloatArray, heading: float, previous: FloatArray, forward_only: bool = False
+    ) -> FloatArray:
         c, s = math.cos(heading), math.sin(heading)
         along = c * desired_world[0] + s * desired_world[1]
         side = -s * desired_world[0] + c * desired_world[1]
         speed = min(math.hypot(along, side), self.max_wheel_speed_mps)
-        if abs(along) > 0.1 * math.hypot(along, side):
+        if forward_only:
+            self._sign = 1.0
+        elif abs(along) > 0.1 * math.hypot(along, side):
             self._sign = 1.0 if along > 0.0 else -1.0
         vmax = self.max_wheel_speed_mps
         return np.array((along, side, previous[0] / vmax, previous[1] / vmax, self._sign * speed))
 
-    def _solve_plan(self, parameters: FloatArray) -> FloatArray:
-        """Scaled wheel plan (2N,); raises on a failure."""
+    def _solve_plan(self, parameters: FloatArray, forward_only: bool = False) -> FloatArray:
+        """Scaled wheel plan (2N,); raises on a failure. forward_only: no step's forward speed below 0."""
         warm = np.concatenate((self._plan[2:], self._plan[-2:]))
+        lowest_forward = 0.0 if forward_only else -1.0
+        if forward_only:
+            warm = np.clip(warm, -1.0, 1.0)
+            backwards = np.minimum(0.0, 0.5 * (warm[0::2] + warm[1::2]))
+            warm -= np.repeat(backwards, 2)  # a feasible start: the backward part of each step removed
         if self.form == "linear":
             self._data.inputs["p"][:] = parameters
             self._data()
+            self._qp.inputs["lba"][:] = lowest_forward
             self._qp.inputs["x0"][:] = warm
             self._qp()
             stats = self._qp.stats()
             if not stats["success"]:
                 raise _SolveError(f"{self.solver}: {stats.get('return_status')}")
             return self._qp.outputs["x"].copy()
-        solution = self._nlp(x0=warm, p=parameters, lbx=self._lbx, ubx=self._ubx)
+        self._lbg[:] = lowest_forward
+        solution = self._nlp(x0=warm, p=parameters, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
         stats = self._nlp.stats()
         if not stats["success"]:
             raise _SolveError(f"{self.nlp_solver}: {stats.get('return_status')}")
         return np.array(solution["x"], dtype=float).ravel()
 
     def solve(
-        self, desired_velocity_mps: FloatArray, heading_rad: float, previous_wheels_mps: FloatArray | None = None
+        self,
+        desired_velocity_mps: FloatArray,
+        heading_rad: float,
+        previous_wheels_mps: FloatArray | None = None,
+        *,
+        forward_only: bool = False,
     ) -> DiffDriveMpcResult:
         """Wheel speeds (left, right) for one control step.
 
         desired_velocity_mps: (2,) world frame, m/s (non-finite: 0); heading_rad:
         estimated heading (non-finite: 0); previous_wheels_mps: (2,) the wheel
         speeds applied last step, m/s; None: those this controller returned last.
+        forward_only: never back up (every planned step's forward speed >= 0), for a robot whose body heading
+        matters (a behaviour that wished a heading: heading consensus broadcasts the body's heading).
         """
         desired = _vector2(desired_velocity_mps)
         heading = _finite_float(heading_rad, 0.0)
@@ -731,7 +760,7 @@ class DiffDriveMpc:
         ok, used_fallback, status = True, False, "optimal"
         start, cpu = time.perf_counter(), time.thread_time()
         try:
-            plan = self._solve_plan(self._parameters(desired, heading, previous))
+            plan = self._solve_plan(self._parameters(desired, heading, previous, forward_only), forward_only)
             elapsed = time.perf_counter() - start
             if not np.all(np.isfinite(plan)):
                 raise _SolveError("non-finite solution")

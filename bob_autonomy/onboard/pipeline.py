@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from bob_autonomy.control.motorboat_control import MotorboatCommand, MotorboatController, MotorboatModel, MotorboatMpc
 from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc
 from bob_autonomy.control.velocity_control import BuoyModel, BuoyVelocityController, DiffDriveController
+from bob_autonomy.core.arrays import wrap
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
 from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
@@ -276,9 +277,19 @@ class EbotPipeline:
         simple = self.simple.wheels(wish_mps, wish_heading_rad, heading)
         if not self.use_mpc or idle:
             return simple
-        # The MPC tracks a velocity vector; turning in place to a wished heading stays the simple controller's.
-        turning = ~np.isnan(wish_heading_rad) & (np.hypot(wish_mps[:, 0], wish_mps[:, 1]) < 1e-6)
-        wheels = np.array([mpc.solve(wish_mps[k], heading[k]).wheels_mps for k, mpc in enumerate(self.mpcs)])
+        # The MPC tracks a velocity vector and may back up to do it. A robot wished a heading must face it (heading
+        # consensus broadcasts the body's heading: backing up would show its neighbours the opposite one), so it
+        # turns in place with the simple controller while it stands or is more than 90 deg off the wished heading,
+        # and the MPC then drives it forward only.
+        wished = ~np.isnan(wish_heading_rad)
+        off = np.abs(wrap(np.where(wished, wish_heading_rad, heading) - heading))
+        turning = wished & ((np.hypot(wish_mps[:, 0], wish_mps[:, 1]) < 1e-6) | (off > 0.5 * np.pi))
+        wheels = np.array(
+            [
+                mpc.solve(wish_mps[k], heading[k], forward_only=bool(wished[k])).wheels_mps
+                for k, mpc in enumerate(self.mpcs)
+            ]
+        )
         return np.where(turning[:, None], simple, wheels.reshape(-1, 2))
 
 
