@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from bob_autonomy.core.arrays import finite_pair
 from firmware_bridge.commands import Encoder, command_long_arm, rc_override_for_thrust, rc_override_for_wheels, set_mode
 from firmware_bridge.decoder import Battery, CommandAck, Heartbeat, HeartbeatWatch, Reading, TelemetryDecoder
 
@@ -81,7 +82,7 @@ class VehicleLink:
 
     def command(self, actuator: np.ndarray) -> bytes:
         """RC_CHANNELS_OVERRIDE for a thrust (x forward, y left; N) or wheel speeds (left, right; m/s)."""
-        a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2))
+        a = finite_pair(actuator)
         if self.kind == BUOY:
             return rc_override_for_thrust(a, self.max_actuator, self.target_system, encoder=self.encoder)
         return rc_override_for_wheels(a[0], a[1], self.max_actuator, self.target_system, encoder=self.encoder)

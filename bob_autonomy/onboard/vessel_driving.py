@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from bob_autonomy.core.arrays import finite_pair
 from bob_autonomy.onboard.autopilot import MOTORBOAT
 from bob_autonomy.onboard.vehicle_link import BUOY
 from firmware_bridge.commands import ROVER_MODES
@@ -43,7 +44,8 @@ class AutopilotDriving:
         """RC overrides for a buoy's body-frame thrust (x forward, y left; N), a motorboat's (throttle, steering)
         or an eBot's wheel speeds (left, right; m/s), through the autopilot's RC map and calibration
         (`AutopilotSession.override`)."""
-        a = np.nan_to_num(np.asarray(actuator, dtype=float).reshape(2)) / self.max_actuator
+        x, y = finite_pair(actuator)
+        a = (x / self.max_actuator, y / self.max_actuator)
         if self.config.kind == MOTORBOAT:
             return self.autopilot.override(a[1], a[0], None)
         if self.config.kind == BUOY:
