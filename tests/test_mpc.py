@@ -208,6 +208,22 @@ def test_forced_failure_gives_the_fallback_within_limits(failure: str, monkeypat
     assert mpc.fallbacks == 2
 
 
+def test_a_real_solver_failure_is_a_counted_fallback_naming_the_solver() -> None:
+    # The conic solvers raise when they do not solve (error_on_fail; no stats() per call): make the QPs infeasible
+    # (constraint lower bounds above their upper bounds) and the solver's own failure must become the fallback.
+    buoy = BuoyMpc(time_budget_s=RELAXED_BUDGET_S)
+    buoy._qp.inputs["lba"][buoy._n_poly :] = 1e3
+    result = buoy.solve(np.array([0.5, 0.0]), np.zeros(2), np.zeros(2), 0.0, 30.0)
+    assert not result.ok and result.fallback and buoy.fallbacks == 1
+    assert result.status.startswith(f"fallback: _SolveError: {buoy.solver}: ")
+    assert in_polygon(buoy, result.thrust_world_n, 30.0)
+    ebot = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
+    ebot._qp.inputs["uba"][:] = -2.0  # below lba, whatever forward_only sets
+    result = ebot.solve(np.array([0.0, 0.2]), 0.0)
+    assert not result.ok and ebot.fallbacks == 1 and ebot.solver in result.status
+    assert result.wheels_mps[1] > result.wheels_mps[0]  # the heuristic turns left
+
+
 def test_fallback_without_limits_to_reach_is_the_proportional_command(monkeypatch) -> None:
     mpc = BuoyMpc(time_budget_s=RELAXED_BUDGET_S)
     monkeypatch.setattr(mpc, "_solve_qp", _raise)

@@ -422,7 +422,7 @@ class MotorboatMpc:
             model, self.step_s, self.horizon, self.weights, self.solver
         )
         self._data = _BufferedCall(data)
-        self._qp = _BufferedCall(conic, self._data.outputs)
+        self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         self._qp.inputs["a"][:] = constraint_values
         step = self.model.steering_slew_per_s * self.step_s
         self._qp.inputs["lba"][:] = -step
@@ -454,10 +454,7 @@ class MotorboatMpc:
         lbx[n:], ubx[n:] = -1.0, 1.0
         step = self.model.steering_slew_per_s * self.step_s
         lbx[n], ubx[n] = max(-1.0, self._previous[1] - step), min(1.0, self._previous[1] + step)
-        self._qp()
-        stats = self._qp.stats()
-        if not stats["success"]:
-            raise _SolveError(f"{self.solver}: {stats.get('return_status')}")
+        self._qp()  # raises _SolveError when not solved
         x = out["x"]
         return np.column_stack((x[:n], x[n:]))
 

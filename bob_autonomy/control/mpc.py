@@ -172,8 +172,11 @@ class _BufferedCall:
     are bound as inputs of the same name, so one function writes into the next.
     """
 
-    def __init__(self, function: ca.Function, shared: dict[str, FloatArray] | None = None) -> None:
+    def __init__(
+        self, function: ca.Function, shared: dict[str, FloatArray] | None = None, failure_label: str | None = None
+    ) -> None:
         self.function = function
+        self.failure_label = failure_label or function.name()
         self.buffer, self._evaluate = function.buffer()
         self.inputs: dict[str, FloatArray] = {}
         self.outputs: dict[str, FloatArray] = {}
@@ -189,7 +192,10 @@ class _BufferedCall:
             self.outputs[name] = array
 
     def __call__(self) -> None:
-        self._evaluate()
+        try:
+            self._evaluate()
+        except RuntimeError:  # a conic solver (built with error_on_fail) did not solve: say its status
+            raise _SolveError(f"{self.failure_label}: {self.buffer.stats().get('return_status')}") from None
         if self.buffer.ret() != 0:
             raise _SolveError(f"{self.function.name()} returned {self.buffer.ret()}")
 
@@ -198,7 +204,9 @@ class _BufferedCall:
 
 
 def _conic(name: str, plugin: str, hessian: ca.Sparsity, constraints: ca.Sparsity) -> ca.Function:
-    options: dict[str, object] = {"error_on_fail": False, **_PLUGIN_OPTIONS.get(plugin, {})}
+    """A conic QP solver that raises when it does not solve (error_on_fail), so a solve is checked without
+    FunctionBuffer.stats(), which costs about ten times the solve of these small QPs."""
+    options: dict[str, object] = {"error_on_fail": True, **_PLUGIN_OPTIONS.get(plugin, {})}
     return ca.conic(name, plugin, {"h": hessian, "a": constraints}, options)
 
 
@@ -335,7 +343,9 @@ class BuoyMpc:
         data = ca.Function("buoy_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(
-            _conic("buoy_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()), self._data.outputs
+            _conic("buoy_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()),
+            self._data.outputs,
+            self.solver,
         )
         qp = self._qp.inputs
         qp["a"][:] = self._constraint_values
@@ -390,10 +400,7 @@ class BuoyMpc:
         x0[-2:] = x[-2:]
         qp["lam_x0"][:] = out["lam_x"]
         qp["lam_a0"][:] = out["lam_a"]
-        self._qp()
-        stats = self._qp.stats()
-        if not stats["success"]:
-            raise _SolveError(f"{self.solver}: {stats.get('return_status')}")
+        self._qp()  # raises _SolveError when not solved
         return (scale * x).reshape(self.horizon, 2)
 
     def polygon_peak(self, x: float, y: float) -> float:
@@ -656,7 +663,9 @@ class DiffDriveMpc:
         data = ca.Function("ebot_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(
-            _conic("ebot_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()), self._data.outputs
+            _conic("ebot_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()),
+            self._data.outputs,
+            self.solver,
         )
         self._qp.inputs["a"][:] = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
         self._qp.inputs["lbx"][:] = -1.0
@@ -723,10 +732,7 @@ class DiffDriveMpc:
             self._data()
             self._qp.inputs["lba"][:] = lowest_forward
             self._qp.inputs["x0"][:] = warm
-            self._qp()
-            stats = self._qp.stats()
-            if not stats["success"]:
-                raise _SolveError(f"{self.solver}: {stats.get('return_status')}")
+            self._qp()  # raises _SolveError when not solved
             return self._qp.outputs["x"].copy()
         self._lbg[:] = lowest_forward
         solution = self._nlp(x0=warm, p=parameters, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
