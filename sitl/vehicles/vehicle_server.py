@@ -242,6 +242,7 @@ class VehicleServer:
                 self.rows[kind],
                 metres_per_tick=self.metres_per_tick,
                 fused_position=True,
+                ticked=True,
             )
         if ebot_senses is not None and self.rows[EBOT].size:
             ranges, light = ebot_senses

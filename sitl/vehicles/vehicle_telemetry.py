@@ -24,11 +24,13 @@ def encode_readings(
     *,
     metres_per_tick: float = 1.0,
     fused_position: bool = False,
+    ticked: bool = False,
 ) -> None:
     """Give each vehicle its readings and append to frames[row] what it sends: with "sensor-rate" streams each
     reading's message at once (SCALED_IMU, GPS_RAW_INT and, when `fused_position`, GLOBAL_POSITION_INT for ground
     stations, ATTITUDE, WHEEL_DISTANCE of ticks * metres_per_tick); with "ardupilot" streams whatever its schedule
-    says is due. A reading's agent k is vehicle rows[k] (rows None: k itself)."""
+    says is due. A reading's agent k is vehicle rows[k] (rows None: k itself). ticked: every vehicle's clock has
+    just run to t_s (`housekeeping(t_s)`, nothing received since), so its streams need not run it again."""
     touched: dict[int, None] = {}
 
     def vehicle_rows(agents):
@@ -75,7 +77,7 @@ def encode_readings(
                 frames[row] += vehicles[row].telemetry.wheel_distance(t_s, distances)
     for row in touched:
         if vehicles[row].streams == "ardupilot":
-            frames[row] += vehicles[row].stream(t_s)
+            frames[row] += vehicles[row].stream(t_s, tick=not ticked)
 
 
 def encode_senses(

@@ -113,7 +113,7 @@ class MavlinkTransport:
         """Encode each vehicle's new readings (and its 1 Hz housekeeping) as telemetry; returns the readings the
         vessels decode from it."""
         frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
-        encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick)
+        encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick, ticked=True)
         # Decoded vehicle by vehicle, fused as one batch per kind and round (sitl.vehicles.reading_batches).
         decoded = [link.receive(bytes(data)) if data else [] for link, data in zip(self.links, frames, strict=True)]
         return merge_by_round(decoded)
