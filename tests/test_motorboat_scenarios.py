@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_process_fleet import free_ports
+from test_process_fleet import SPEED, free_ports
 
 from sitl.experiments.reproduce import select_experiments
 from sitl.experiments.runner import simulate
@@ -25,10 +25,6 @@ from sitl.fleets.process_fleet import ProcessOptions, run_processes_to_directory
 
 MOTORBOAT_SCENARIOS = ("aggregation-motorboats", "aggregation-mixed", "leader-follower-motorboats")
 TURNING_RADIUS_M = 4.0
-# The process fleets below run at 3x real time: their world steps in about 17 ms of CPU with three busy processes
-# beside it (the other test worker and its children), so at 5x (20 ms a step) it fell behind, the vessels heard
-# their vehicles "silent" and commanded neutral, and the boats never came together. 3x leaves 33 ms a step.
-PROCESS_SPEED = 3.0
 
 
 def run(name: str, **overrides) -> dict:
@@ -100,7 +96,7 @@ def test_the_mixed_fleet_aggregates_in_separate_processes_too(tmp_path) -> None:
     ]
     data["metrics"] = {"kind": "aggregation", "params": {"average_window_s": 10.0}}
     scenario = validate_scenario(data, "test scenario")
-    options = ProcessOptions(speed=PROCESS_SPEED, base_port=base, mesh_port=mesh, gcs_port=gcs)
+    options = ProcessOptions(speed=SPEED, base_port=base, mesh_port=mesh, gcs_port=gcs)
     result = run_processes_to_directory(scenario, tmp_path / "run", options)
     m = result.metrics
 
@@ -134,7 +130,7 @@ def test_motorboats_follow_a_leader_boat_in_separate_processes(tmp_path) -> None
     data["groups"] = [leader, followers]
     data["metrics"]["params"].update(min_path_m=70.0, weak_agents=[])
     scenario = validate_scenario(data, "test scenario")
-    options = ProcessOptions(speed=PROCESS_SPEED, base_port=base, mesh_port=mesh, gcs_port=gcs)
+    options = ProcessOptions(speed=SPEED, base_port=base, mesh_port=mesh, gcs_port=gcs)
     result = run_processes_to_directory(scenario, tmp_path / "run", options)
     m = result.metrics
 

@@ -464,7 +464,11 @@ def test_behavior_parameters_for_set_behavior_events() -> None:
 
 # ---------------------------------------------------------------- (d) end to end with bob-autonomy run
 
-SPEED = 5.0
+# Simulated seconds per wall second of the process fleets here (and in test_motorboat_scenarios). At 5x a world
+# step has 20 ms of wall time; on a slow 2-core machine with the other test worker busy the world's own step took
+# 17-19 ms, fell behind, the vessels heard their vehicles "silent" and commanded neutral, and the swarm did not
+# gather (seen in CI dry runs: 5 buoys ended at 14,045 m2 of 20,049). 3x leaves 33 ms a step.
+SPEED = 3.0
 DURATION_S = 130.0
 SWITCH_S = 10.0
 
