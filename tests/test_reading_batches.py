@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import sitl.vehicles.vehicle_transport as transport
+from firmware_bridge.batch_decoder import Row
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
 from sitl.experiments.scenario import load_scenario
 from sitl.fleets.fleet import LockstepFleet
@@ -53,6 +54,11 @@ def test_same_kind_rows_become_one_reading_with_all_rows_and_fields() -> None:
     assert merge_by_round([]) == [] and merge_by_round([[], []]) == []
 
 
+def _one_by_one(per_vehicle, columns=None) -> list:
+    """Every reading on its own, vehicle after vehicle (rows decoded column-wise taken one at a time)."""
+    return [columns.take(r.key, [r.index]) if isinstance(r, Row) else r for rs in per_vehicle for r in rs]
+
+
 def test_a_buoy_fleet_over_mavlink_estimates_the_same_merged_or_not(monkeypatch) -> None:
     """Each vessel's filter does the same arithmetic on its own rows; batching only changes how numpy groups it,
     so the estimates agree to rounding (the last bits of a float), not necessarily bit for bit."""
@@ -61,7 +67,7 @@ def test_a_buoy_fleet_over_mavlink_estimates_the_same_merged_or_not(monkeypatch)
     largest = 0.0
     for _ in range(60):
         merged.step()
-        monkeypatch.setattr(transport, "merge_by_round", lambda per_vehicle: [r for rs in per_vehicle for r in rs])
+        monkeypatch.setattr(transport, "merge_by_round", _one_by_one)
         one_by_one.step()
         monkeypatch.undo()
         a, b = merged.bodies.buoy_vessels.estimator, one_by_one.bodies.buoy_vessels.estimator

@@ -9,11 +9,12 @@ by `silent()`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from bob_autonomy.core.arrays import finite_pair
+from firmware_bridge.batch_decoder import Columns, decode_batch
 from firmware_bridge.commands import Encoder, command_long_arm, rc_override_for_thrust, rc_override_for_wheels, set_mode
 from firmware_bridge.decoder import Battery, CommandAck, Heartbeat, HeartbeatWatch, Reading, TelemetryDecoder
 
@@ -59,8 +60,12 @@ class VehicleLink:
 
     def receive(self, data: bytes) -> list[Reading]:
         """Decode bytes from the vehicle; returns the sensor readings (GPS, compass, IMU, wheels) among them."""
-        sensors: list[Reading] = []
-        for reading in self.decoder.feed(data):
+        return self._take(self.decoder.feed(data))
+
+    def _take(self, readings: list) -> list:
+        """Keep the link's own news (heartbeat, battery, acknowledgements); return the rest, in order."""
+        sensors = []
+        for reading in readings:
             if isinstance(reading, Heartbeat):  # the autopilot's: the decoder keeps only component 1
                 self.watch.beat(reading.t_s)
                 self.last_heartbeat = reading
@@ -105,3 +110,14 @@ class VehicleLink:
             if ack.command == command:
                 return self.acks.pop(k)
         return None
+
+
+def receive_all(links: Sequence[VehicleLink], chunks: Sequence[bytes]) -> tuple[list[list[object]], Columns | None]:
+    """links[k].receive(chunks[k]) for every k at once (`firmware_bridge.batch_decoder`): per link its sensor
+    readings in order, those of the column-wise types as `Row`s of the returned `Columns` (None when the batch
+    was off the fast path and every link decoded its own chunk, giving readings only)."""
+    batch = decode_batch([link.decoder for link in links], chunks)
+    if batch is None:
+        return [link.receive(chunk) if chunk else [] for link, chunk in zip(links, chunks, strict=True)], None
+    per_link, columns = batch
+    return [link._take(readings) for link, readings in zip(links, per_link, strict=True)], columns

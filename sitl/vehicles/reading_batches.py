@@ -22,13 +22,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from firmware_bridge.batch_decoder import Columns, Row
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, LightReading, RangeReading
 
 MERGEABLE = (GpsFix, CompassReading, ImuReading, EncoderReading, RangeReading, LightReading)
 
 
-def merge_by_round(per_vehicle: Sequence[Sequence[object]]) -> list[object]:
-    """The readings of all vehicles (each vehicle's list in its own order), merged round by round (module doc)."""
+def merge_by_round(per_vehicle: Sequence[Sequence[object]], columns: Columns | None = None) -> list[object]:
+    """The readings of all vehicles (each vehicle's list in its own order), merged round by round (module doc).
+    Readings decoded column-wise come as `Row`s of `columns` (firmware_bridge.batch_decoder) and are merged
+    alike."""
     merged: list[object] = []
     for k in range(max((len(readings) for readings in per_vehicle), default=0)):
         groups: dict[tuple, list[object]] = {}
@@ -36,17 +39,23 @@ def merge_by_round(per_vehicle: Sequence[Sequence[object]]) -> list[object]:
             if k >= len(readings):
                 continue
             reading = readings[k]
+            if isinstance(reading, Row):
+                groups.setdefault(reading.key, []).append(reading)
+                continue
             if not isinstance(reading, MERGEABLE):
                 merged.append(reading)
                 continue
             present = tuple(getattr(reading, f.name) is not None for f in dataclasses.fields(reading))
             groups.setdefault((type(reading), present), []).append(reading)
-        merged += [_concatenate(group) for group in groups.values()]
+        merged += [_concatenate(group, columns) for group in groups.values()]
     return merged
 
 
-def _concatenate(group: list[object]) -> object:
+def _concatenate(group: list[object], columns: Columns | None) -> object:
     """One reading holding the rows of all of `group` (same kind, same optional fields present), in order."""
+    if all(isinstance(reading, Row) for reading in group):
+        return columns.take(group[0].key, [row.index for row in group])
+    group = [columns.take(r.key, [r.index]) if isinstance(r, Row) else r for r in group]
     if len(group) == 1:
         return group[0]
     first = group[0]

@@ -18,7 +18,7 @@ import numpy as np
 
 from bob_autonomy.onboard.autopilot import AutopilotSession
 from bob_autonomy.onboard.senses import EbotSenses
-from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink
+from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink, receive_all
 from firmware_bridge.commands import normalised_to_pwm, rc_override
 from firmware_bridge.readings import SensorReadings
 from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
@@ -115,8 +115,8 @@ class MavlinkTransport:
         frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
         encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick, ticked=True)
         # Decoded vehicle by vehicle, fused as one batch per kind and round (sitl.vehicles.reading_batches).
-        decoded = [link.receive(bytes(data)) if data else [] for link, data in zip(self.links, frames, strict=True)]
-        return merge_by_round(decoded)
+        decoded, columns = receive_all(self.links, [bytes(data) for data in frames])
+        return merge_by_round(decoded, columns)
 
     def senses(
         self,
