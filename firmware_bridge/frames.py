@@ -16,6 +16,7 @@ when fastcrc is installed), and the message object filled in directly.
 from __future__ import annotations
 
 import inspect
+import operator
 import struct
 from collections.abc import Sequence
 from typing import Any
@@ -67,16 +68,18 @@ class MessageLayout:
         parameters = list(inspect.signature(encode).parameters.values())[1:]  # defaults as `*_encode` has them
         self._defaults = [p.default for p in parameters]
         self._n_fields = len(names)
+        self._tails: dict[int, tuple[Any, ...]] = {}
+        # Wire-order values of a flat layout in one C call (a 1-field itemgetter would give the value itself).
+        getter = operator.itemgetter(*self._order)
+        self._wire_getter = getter if len(self._order) > 1 else (lambda args: (getter(args),))
 
-    def values(self, args: Sequence[Any]) -> list[Any]:
+    def values(self, args: Sequence[Any]) -> Sequence[Any]:
         """The payload's struct values from the `*_encode` arguments (declaration order; trailing ones with
         defaults may be left out)."""
         if len(args) < self._n_fields:
-            args = list(args) + self._defaults[len(args) :]
-            if any(a is inspect.Parameter.empty for a in args):
-                raise TypeError(f"{self.name}: {self._n_fields} fields, {len(args)} given")
+            args = (*args, *self._tail(len(args)))
         if self._flat:
-            return [args[i] for i in self._order]
+            return self._wire_getter(args)
         out: list[Any] = []
         for i, count in self._wire:
             if count:
@@ -84,6 +87,16 @@ class MessageLayout:
             else:
                 out.append(args[i])
         return out
+
+    def _tail(self, given: int) -> tuple[Any, ...]:
+        """The defaults of the arguments after the first `given` (checked once per count: all must have one)."""
+        tail = self._tails.get(given)
+        if tail is None:
+            tail = tuple(self._defaults[given:])
+            if any(a is inspect.Parameter.empty for a in tail):
+                raise TypeError(f"{self.name}: {self._n_fields} fields, {given} given")
+            self._tails[given] = tail
+        return tail
 
     def payload(self, args: Sequence[Any]) -> bytes:
         """The MAVLink 2 payload: packed, trailing zero bytes removed (at least one byte is kept)."""

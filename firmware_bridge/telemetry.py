@@ -40,6 +40,15 @@ def _cm_s(v_mps: float) -> int:
     return int(max(-32767, min(32767, round(v_mps * 100.0))))
 
 
+def _uint16s(values: Sequence[int], count: int) -> list[int]:
+    """`count` values as uint16 fields: the first `count` of `values` as integers clamped to 0..UINT16_MAX, zeros
+    after them (the clamping only done when some value needs it: these go out several times a second)."""
+    out = [int(v) for v in list(values)[:count]]
+    if out and (min(out) < 0 or max(out) > UINT16_MAX):
+        out = [max(0, min(UINT16_MAX, v)) for v in out]
+    return out + [0] * (count - len(out))
+
+
 def _int16(value: float) -> int:
     return int(max(-INT16_MAX, min(INT16_MAX, round(value))))
 
@@ -203,12 +212,12 @@ class TelemetryEncoder:
 
     def rc_channels(self, t_s: float, pwm_us: Sequence[int], channel_count: int) -> bytes:
         """RC_CHANNELS: the autopilot's RC inputs (us; 0 = none), 18 channels, RSSI unknown (255)."""
-        values = [max(0, min(UINT16_MAX, int(v))) for v in list(pwm_us)[:18]] + [0] * max(0, 18 - len(pwm_us))
+        values = _uint16s(pwm_us, 18)
         return self.encoder.frame(mavlink.MAVLink_rc_channels_message, _ms(t_s), int(channel_count), *values, 255)
 
     def servo_output_raw(self, t_s: float, pwm_us: Sequence[int]) -> bytes:
         """SERVO_OUTPUT_RAW: the outputs SERVO1..16 (us; 0 = no output)."""
-        values = [max(0, min(UINT16_MAX, int(v))) for v in list(pwm_us)[:16]] + [0] * max(0, 16 - len(pwm_us))
+        values = _uint16s(pwm_us, 16)
         return self.encoder.frame(mavlink.MAVLink_servo_output_raw_message, _usec(t_s) & 0xFFFFFFFF, 0, *values)
 
     def home_position(self, t_s: float, lat_e7: int, lon_e7: int, alt_m: float = 0.0) -> bytes:

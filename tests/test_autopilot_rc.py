@@ -9,6 +9,7 @@ import pytest
 from autopilot_helpers import Gcs, of_type, parse
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from firmware_bridge.telemetry import TelemetryEncoder
 from sitl.vehicles.autopilot_rc import scale_angle
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
@@ -145,3 +146,23 @@ def test_rc_channels_and_servo_output_raw_show_what_the_vehicle_applies() -> Non
     v.actuator(1.2)
     (rc,) = of_type(parse(v.stream(2.2)), "RC_CHANNELS")
     assert (rc.chan1_raw, rc.chan3_raw) == (1500, 1500)
+
+
+def test_servo_output_raw_follows_a_servo_function_change_at_once() -> None:
+    """The outputs are kept between sends only while the parameters stay: SERVO1_FUNCTION 0 (disabled) turns
+    SERVO1 off in the very next SERVO_OUTPUT_RAW."""
+    v, gcs = SimulatedVehicle(1, "ebot", 1.0, armed=True, params=NO_SLEW), Gcs()
+    v.receive(gcs.override({1: 1715, 3: 1900}), 0.0)
+    v.actuator(0.0)
+    (servo,) = of_type(parse(v.stream(0.0)), "SERVO_OUTPUT_RAW")
+    assert servo.servo1_raw == 1900
+    assert v.params.set("SERVO1_FUNCTION", 0)
+    (servo,) = of_type(parse(v.stream(1.0)), "SERVO_OUTPUT_RAW")
+    assert (servo.servo1_raw, servo.servo3_raw) == (0, round(1500 + 400 / 3))
+
+
+@pytest.mark.parametrize("pwm", [[1500] * 8, [-5, 70000, 1499.7, 65535, 0], [1100] * 20, []])
+def test_rc_channels_clamp_each_value_into_its_uint16_field(pwm) -> None:
+    (rc,) = parse(TelemetryEncoder(1).rc_channels(1.0, pwm, 16))
+    fields = [getattr(rc, f"chan{i}_raw") for i in range(1, 19)]
+    assert fields == [max(0, min(65535, int(p))) for p in pwm[:18]] + [0] * (18 - len(pwm[:18]))

@@ -147,6 +147,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         self._driving_override = False
         self.in_failsafe = True  # no override in force (kept for callers that watch it)
         self._frame_version = self._failsafe_version = -1  # parameter-derived caches, stale at first
+        self._servo_cache: tuple[tuple, list[int]] | None = None  # see servo_outputs
 
     # -- parameters that act at once -----------------------------------------------------------------------
 
@@ -375,9 +376,16 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         return self._demand(self._out)
 
     def servo_outputs(self) -> list[int]:
-        """SERVO1..8 PWM as the outputs stand (trim while disarmed; AP_MotorsUGV setup_safety_output)."""
-        functions = [self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)]
+        """SERVO1..8 PWM as the outputs stand (trim while disarmed; AP_MotorsUGV setup_safety_output). Kept while
+        the outputs, the arming and the parameters stay as they were (SERVO_OUTPUT_RAW goes out every second)."""
         out = self._out if self.armed else PilotOutput()
+        key = (self.params.version, out.steering, out.throttle, out.lateral)
+        if self._servo_cache is None or self._servo_cache[0] != key:
+            self._servo_cache = (key, self._servo_pwms(out))
+        return list(self._servo_cache[1])
+
+    def _servo_pwms(self, out: PilotOutput) -> list[int]:
+        functions = [self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)]
         values = {26: out.steering, 70: out.throttle}
         values[73], values[74] = skid_outputs(out)
         for k, v in enumerate(omni_motor_outputs(self.params.get_int("FRAME_TYPE"), out)):
