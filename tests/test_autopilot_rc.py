@@ -4,13 +4,15 @@ on omni frames), MOT_SLEWRATE; what the vehicle applies is visible in RC_CHANNEL
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from autopilot_helpers import Gcs, of_type, parse
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.telemetry import TelemetryEncoder
-from sitl.vehicles.autopilot_rc import scale_angle
+from sitl.vehicles.autopilot_rc import OVERRIDE_CHANNELS, RcInput, scale_angle
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 m = mavlink
@@ -166,3 +168,41 @@ def test_rc_channels_clamp_each_value_into_its_uint16_field(pwm) -> None:
     (rc,) = parse(TelemetryEncoder(1).rc_channels(1.0, pwm, 16))
     fields = [getattr(rc, f"chan{i}_raw") for i in range(1, 19)]
     assert fields == [max(0, min(65535, int(p))) for p in pwm[:18]] + [0] * (18 - len(pwm[:18]))
+
+
+def _update_channel_by_channel(rc: RcInput, t_s: float, timeout_s: float, trims: list[int]) -> list[int]:
+    """RC_Channel::update as ArduPilot writes it, one channel at a time: the reference for RcInput.update."""
+    radio_in = list(rc.radio_in)
+    for i in range(OVERRIDE_CHANNELS):
+        value = rc.override[i]
+        live = bool(value) and (timeout_s < 0 or (timeout_s > 0 and t_s - rc.override_t[i] < timeout_s))
+        if live:
+            radio_in[i] = value
+        elif rc.receiver:
+            radio_in[i] = trims[i] if i < len(trims) else 1500
+    return radio_in
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_rc_input_update_is_channel_by_channel_update(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        rc = RcInput(receiver=bool(rng.integers(2)))
+        rc.override = [int(v) if rng.random() < 0.6 else 0 for v in rng.integers(800, 2200, OVERRIDE_CHANNELS)]
+        rc.override_t = [float(v) for v in rng.uniform(0, 10, OVERRIDE_CHANNELS)]
+        rc.radio_in = [int(v) for v in rng.integers(0, 2200, OVERRIDE_CHANNELS)]
+        timeout = float(rng.choice([-1.0, 0.0, 0.5, 3.0, math.nan]))
+        trims = [int(v) for v in rng.integers(1400, 1600, 8)]
+        t = float(rng.uniform(0, 12))
+        expected = _update_channel_by_channel(rc, t, timeout, trims)
+        rc.update(t, timeout, trims)
+        assert rc.radio_in == expected
+
+
+def test_a_calibration_change_acts_on_the_override_already_in_force() -> None:
+    """The pilot input is kept between reads only while RC input and parameters stay: reversing the throttle
+    channel turns the same override into thrust astern at the next motor output."""
+    v = _armed()
+    assert _drive(v, {3: 1900})[0] == pytest.approx(10.0)
+    assert v.params.set("RC3_REVERSED", 1)
+    assert v.actuator(0.1)[0] == pytest.approx(-10.0)

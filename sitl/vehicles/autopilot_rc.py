@@ -106,17 +106,20 @@ class RcInput:
 
     def update(self, t_s: float, timeout_s: float, trims: list[int]) -> None:
         """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value. (The test
-        of `has_override` inlined: this runs for every channel of every vehicle at every step.)"""
-        override, override_t, radio_in, receiver = self.override, self.override_t, self.radio_in, self.receiver
-        n_trims = len(trims)
-        for i in range(OVERRIDE_CHANNELS):
-            value = override[i]
-            if value and (timeout_s < 0 or (timeout_s > 0 and t_s - override_t[i] < timeout_s)):
-                radio_in[i] = value
-            elif receiver:
-                radio_in[i] = trims[i] if i < n_trims else 1500
-        if receiver:
+        of `has_override` inlined, all channels in one comprehension: this runs for every vehicle at every step.)"""
+        override, override_t = self.override, self.override_t
+        if timeout_s == 0:  # overrides disabled
+            live = [False] * OVERRIDE_CHANNELS
+        elif timeout_s < 0:  # overrides never expire
+            live = [bool(value) for value in override]
+        else:
+            live = [bool(value) and t_s - since < timeout_s for value, since in zip(override, override_t, strict=True)]
+        if self.receiver:
+            neutral = list(trims[:OVERRIDE_CHANNELS]) + [1500] * (OVERRIDE_CHANNELS - len(trims))
+            self.radio_in[:] = [v if on else n for v, on, n in zip(override, live, neutral, strict=True)]
             self.last_valid_s = t_s
+        else:
+            self.radio_in[:] = [v if on else r for v, on, r in zip(override, live, self.radio_in, strict=True)]
 
 
 @dataclass

@@ -281,6 +281,8 @@ class BuoyDynamics:
         substeps = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
         h = dt_s / substeps
         yaw_rate_decay = p.yaw_damping_nms_per_rad / p.yaw_inertia_kgm2 * h
+        # The yaw integrator's factors depend on h alone: one value, broadcast over the buoys at each substep.
+        yaw_phi1, yaw_phi2 = _phi1(np.full(1, yaw_rate_decay)), _phi2(np.full(1, yaw_rate_decay))
         for _ in range(substeps):
             turn = wrap_angle(target - nozzle)
             nozzle = nozzle + np.clip(turn, -p.thrust_slew_radps * h, p.thrust_slew_radps * h)
@@ -293,8 +295,8 @@ class BuoyDynamics:
             x, v = x + dx, v + dv
 
             yaw_accel = (torque - p.yaw_damping_nms_per_rad * rate) / p.yaw_inertia_kgm2
-            heading = heading + h * (rate + yaw_accel * h * _phi2(np.full_like(rate, yaw_rate_decay)))
-            rate = rate + yaw_accel * h * _phi1(np.full_like(rate, yaw_rate_decay))
+            heading = heading + h * (rate + yaw_accel * h * yaw_phi2)
+            rate = rate + yaw_accel * h * yaw_phi1
 
         self.position_m[act], self.velocity_mps[act] = x, v
         self.heading_rad[act], self.yaw_rate_radps[act] = wrap_angle(heading), rate

@@ -148,6 +148,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         self.in_failsafe = True  # no override in force (kept for callers that watch it)
         self._frame_version = self._failsafe_version = -1  # parameter-derived caches, stale at first
         self._servo_cache: tuple[tuple, list[int]] | None = None  # see servo_outputs
+        self._pilot_cache: tuple[tuple, tuple[float, float, float]] | None = None  # see _read_pilot
 
     # -- parameters that act at once -----------------------------------------------------------------------
 

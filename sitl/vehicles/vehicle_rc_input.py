@@ -20,6 +20,9 @@ from sitl.vehicles.vehicle_defs import (
     OVERRIDE_FIELDS,
 )
 
+# What an override channel may carry: a PWM of 800-2200 us, or 0 / UINT16_MAX-1 / UINT16_MAX (release, ignore).
+_VALID_OVERRIDE = frozenset(range(800, 2201)) | {0, 65534, 65535}
+
 
 class RcInputHandling:
     """RC input handling, mixed into SimulatedVehicle (which holds the state it uses)."""
@@ -29,7 +32,7 @@ class RcInputHandling:
             self.counters.refused += 1  # GCS_Common.cpp handle_rc_channels_override: only from our GCS
             return
         raw = [int(getattr(msg, name, 0)) for name in OVERRIDE_FIELDS]
-        if any(not (800 <= v <= 2200 or v in (0, 65534, 65535)) for v in raw):
+        if not _VALID_OVERRIDE.issuperset(raw):
             self.counters.rejected += 1  # stricter than ArduPilot, which clamps any value into RCx_MIN..MAX
             return
         self.rc.apply_override(raw, t_s)
@@ -100,9 +103,15 @@ class RcInputHandling:
         return norm_input_dz(pwm, *calib) if paddle else scale_angle(pwm, *calib)
 
     def _read_pilot(self) -> tuple[float, float, float]:
-        steering, throttle = pilot_demand(self._channel, self.params.get_int("PILOT_STEER_TYPE"), self.skid_steer())
-        lateral = self._channel("lateral") if self.omni() else 0.0
-        return steering, throttle, lateral
+        """(steering, throttle, lateral) from RC inputs 1-8 (the RCMAP roles are among them) and the parameters;
+        kept while both stay as they were (asked when an override arrives and when the motors run)."""
+        key = (self.params.version, *self.rc.radio_in[:8])
+        if self._pilot_cache is None or self._pilot_cache[0] != key:
+            steer_type = self.params.get_int("PILOT_STEER_TYPE")
+            steering, throttle = pilot_demand(self._channel, steer_type, self.skid_steer())
+            lateral = self._channel("lateral") if self.omni() else 0.0
+            self._pilot_cache = (key, (steering, throttle, lateral))
+        return self._pilot_cache[1]
 
     def _demand(self, out: PilotOutput) -> np.ndarray:
         """The actuator vector (N thrust x, y body; m/s wheels left, right; or a motorboat's throttle and ground
