@@ -20,10 +20,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from bob_autonomy.onboard.pipeline import BuoyPipeline
-from bob_autonomy.onboard.vehicle_link import VehicleLink
 from sitl.experiments.scenario import load_scenario
 from sitl.fleets.fleet import LockstepFleet
 from sitl.radio.medium import BroadcastMedium
+from sitl.vehicles import vehicle_transport
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 from sitl.vehicles.vehicle_physics import VehiclePhysics
 from sitl.vehicles.vehicle_transport import MavlinkTransport
@@ -42,13 +42,14 @@ def realtime_factor(fidelity: str, simulated_s: float) -> tuple[float, float, fl
     return simulated_s / wall, 1000.0 * wall / steps, 1000.0 * cpu / steps
 
 
-# Where a physics step goes: (label, class, method) of each stage, timed by wrapping the method with a clock
+# Where a physics step goes: (label, class or module, function) of each stage, timed by wrapping it with a clock
 # (wall time; cProfile's per-call overhead would inflate the call-heavy MAVLink stages about twofold).
 STAGES = (
     ("step, total", LockstepFleet, "step"),
     ("MAVLink up: vehicles encode telemetry, vessels decode it", MavlinkTransport, "up"),
     ("- vehicles' telemetry streams (schedule, build, pack)", SimulatedVehicle, "stream"),
-    ("- vessels' decoders (frame, check, decode, convert)", VehicleLink, "receive"),
+    ("- vessels' decoders, all at once (frame, check, decode, convert)", vehicle_transport, "receive_all"),
+    ("- readings merged per kind and round", vehicle_transport, "merge_by_round"),
     ("MAVLink down: RC override encoded, decoded and applied", MavlinkTransport, "down"),
     ("estimator (EKF bank)", BuoyPipeline, "feed"),
     ("controller (MPC)", BuoyPipeline, "thrust"),

@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -33,7 +32,6 @@ from firmware_bridge.decoder import (
     STANDARD_GRAVITY_MPS2,
     UINT16_MAX,
     TelemetryDecoder,
-    heading_from_yaw,
 )
 from firmware_bridge.frames import V2_HEADER_LEN, V2_MARKER, checksum, decode_unsigned, layout
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
@@ -71,37 +69,36 @@ class Row(NamedTuple):
     index: int
 
 
-@dataclass
-class _Frame:
-    decoder: int
-    start: int
-    length: int
-    msg_id: int
-
-
 class Columns:
-    """The rows of the column-wise decoded readings, per key (`Row.key`); `take` builds one reading of some."""
+    """The rows of the column-wise decoded readings, per key (`Row.key`), added a block of rows at a time;
+    `take` builds one reading of some of them."""
 
     def __init__(self) -> None:
-        self._columns: dict[tuple, dict[str, list]] = {}
+        self._blocks: dict[tuple, list[dict[str, np.ndarray]]] = {}
+        self._sizes: dict[tuple, int] = {}
+        self._joined: dict[tuple, dict[str, np.ndarray]] = {}
 
-    def add(self, key: tuple, **values) -> Row:
-        columns = self._columns.get(key)
-        if columns is None:
-            columns = self._columns[key] = {name: [] for name in values}
-        for name, value in values.items():
-            columns[name].append(value)
-        return Row(key, len(columns["agents"]) - 1)
+    def add(self, key: tuple, **columns: np.ndarray) -> list[Row]:
+        """Rows for the given columns (each with one entry per row, `agents` first); returns their `Row`s."""
+        first = self._sizes.get(key, 0)
+        count = len(columns["agents"])
+        self._blocks.setdefault(key, []).append(columns)
+        self._sizes[key] = first + count
+        self._joined.pop(key, None)
+        return [Row(key, i) for i in range(first, first + count)]
 
     def take(self, key: tuple, indices: Sequence[int]) -> object:
         """One reading of type key[0] holding rows `indices` in that order (as `feed` gives them one by one)."""
-        columns = self._columns[key]
-        kind = key[0]
-        values = {}
-        for name, column in columns.items():
-            picked = [column[i] for i in indices]
-            values[name] = np.array(picked, dtype=np.intp if name == "agents" else np.float64)
-        return kind(**values)
+        joined = self._joined.get(key)
+        if joined is None:
+            blocks = self._blocks[key]
+            joined = self._joined[key] = {name: np.concatenate([b[name] for b in blocks]) for name in blocks[0]}
+        picked = np.asarray(indices, dtype=np.intp)
+        return key[0](**{name: column[picked] for name, column in joined.items()})
+
+
+# A frame found in a chunk: (decoder index, start, length, message id, source system, source component).
+_Frame = tuple[int, int, int, int, int, int]
 
 
 def _frames(chunk: bytes, decoder: int, out: list[_Frame]) -> bool:
@@ -121,7 +118,7 @@ def _frames(chunk: bytes, decoder: int, out: list[_Frame]) -> bool:
         crc = checksum(spec._crc_extra_byte, checksum(chunk[pos + 1 : end - _CRC_LEN]))
         if crc != chunk[end - 2] | (chunk[end - 1] << 8):
             return False
-        out.append(_Frame(decoder, pos, end - pos, msg_id))
+        out.append((decoder, pos, end - pos, msg_id, chunk[pos + 5], chunk[pos + 6]))
         pos = end
     return True
 
@@ -145,54 +142,56 @@ def decode_batch(
     for k, (decoder, chunk) in enumerate(zip(decoders, chunks, strict=True)):
         if chunk and not (_fast_path(decoder) and _frames(chunk, k, frames)):
             return None
-    per_decoder: list[list[object]] = [[] for _ in decoders]
-    times: list[float | None] = [None] * len(decoders)
-    believed: list[_Frame] = []
     for decoder, chunk in zip(decoders, chunks, strict=True):
         if chunk:  # `feed` is not called for nothing
             decoder.counters.bytes_fed += len(chunk)
             decoder.counters.pending_bytes = 0
+    times: list[float | None] = [None] * len(decoders)
+    believed: list[_Frame] = []
+    names = _NAMES
     for frame in frames:
-        decoder, chunk = decoders[frame.decoder], chunks[frame.decoder]
+        k, _, length, msg_id, system, component = frame
+        decoder = decoders[k]
         c = decoder.counters
         c.received += 1
-        c.frame_bytes += frame.length
+        c.frame_bytes += length
         c.decoded += 1
-        name = mavlink.mavlink_map[frame.msg_id].msgname
+        name = names[msg_id]
         c.by_type[name] = c.by_type.get(name, 0) + 1
-        system, component = chunk[frame.start + 5], chunk[frame.start + 6]
         if system != decoder.source_system:
             c.other_system += 1
-            continue
-        if decoder.source_component is not None and component != decoder.source_component:
+        elif decoder.source_component is not None and component != decoder.source_component:
             c.other_component += 1
-            continue
-        if times[frame.decoder] is None:
-            times[frame.decoder] = float(decoder.clock())
-        believed.append(frame)
+        else:
+            if times[k] is None:
+                times[k] = float(decoder.clock())
+            believed.append(frame)
     columns = Columns()
     slots = _decode_columnar(decoders, chunks, believed, times, columns)
+    per_decoder: list[list[object]] = [[] for _ in decoders]
     for frame, slot in zip(believed, slots, strict=True):
+        k = frame[0]
         if slot is _NOT_COLUMNAR:
-            slot = _decode_one(decoders[frame.decoder], chunks[frame.decoder], frame, times[frame.decoder])
+            slot = _decode_one(decoders[k], chunks[k], frame, times[k])
         if slot is not None:
-            per_decoder[frame.decoder].append(slot)
+            per_decoder[k].append(slot)
     return per_decoder, columns
 
 
+_NAMES = {msg_id: cls.msgname for msg_id, cls in mavlink.mavlink_map.items()}
 _NOT_COLUMNAR = object()
 
 
 def _decode_one(decoder: TelemetryDecoder, chunk: bytes, frame: _Frame, t_s: float) -> object:
     """A frame of a type read one message at a time (HEARTBEAT, battery, acks, wheels): as `feed` reads it."""
-    name = mavlink.mavlink_map[frame.msg_id].msgname
-    convert = _CONVERTERS.get(name)
-    if convert is None or frame.msg_id in decoder._unread:
+    _, start, length, msg_id, _, _ = frame
+    convert = _CONVERTERS.get(_NAMES[msg_id])
+    if convert is None or msg_id in decoder._unread:
         return None
-    raw = bytearray(chunk[frame.start : frame.start + frame.length])
+    raw = bytearray(chunk[start : start + length])
     crc = raw[-2] | (raw[-1] << 8)
     try:
-        return convert(decoder, decode_unsigned(raw, layout(frame.msg_id), crc), t_s)
+        return convert(decoder, decode_unsigned(raw, layout(msg_id), crc), t_s)
     except (TypeError, ValueError, OverflowError, AttributeError, IndexError):
         return None
 
@@ -207,111 +206,95 @@ def _decode_columnar(
     """Per believed frame: a `Row`, None (no reading) or _NOT_COLUMNAR (to be read one at a time)."""
     slots: list[object] = [_NOT_COLUMNAR] * len(believed)
     by_type: dict[int, list[int]] = {}
-    for i, frame in enumerate(believed):
-        if frame.msg_id in _COLUMNAR and frame.msg_id not in decoders[frame.decoder]._unread:
-            by_type.setdefault(frame.msg_id, []).append(i)
-        elif frame.msg_id in _COLUMNAR:
-            slots[i] = None
+    for i, (k, _, _, msg_id, _, _) in enumerate(believed):
+        if msg_id in _COLUMNAR:
+            if msg_id in decoders[k]._unread:
+                slots[i] = None
+            else:
+                by_type.setdefault(msg_id, []).append(i)
     for msg_id, members in by_type.items():
         dtype = _DTYPES[msg_id]
         size = dtype.itemsize
         payloads = []
         for i in members:
-            f = believed[i]
-            payload = chunks[f.decoder][f.start + V2_HEADER_LEN : f.start + f.length - _CRC_LEN]
-            payloads.append(payload[:size].ljust(size, b"\0"))
+            k, start, length, _, _, _ = believed[i]
+            payloads.append(chunks[k][start + V2_HEADER_LEN : start + length - _CRC_LEN][:size].ljust(size, b"\0"))
         records = np.frombuffer(b"".join(payloads), dtype=dtype)
-        convert = _COLUMN_CONVERTERS[msg_id]
-        for slot, row in zip(members, convert(decoders, believed, members, records, times, columns), strict=True):
-            slots[slot] = row
+        owners = [believed[i][0] for i in members]
+        agents = np.array([decoders[k].agent for k in owners], dtype=np.intp)
+        t_s = np.array([times[k] for k in owners], dtype=np.float64)
+        rows = _COLUMN_CONVERTERS[msg_id](records, agents, t_s, [decoders[k].counters for k in owners], columns)
+        for i, row in zip(members, rows, strict=True):
+            slots[i] = row
     return slots
 
 
-def _agent(decoders: Sequence[TelemetryDecoder], frame: _Frame) -> int:
-    return int(decoders[frame.decoder].agent)
+def _place(rows: list[object], where: np.ndarray, placed: list[Row]) -> None:
+    """Put `placed` (one per True of `where`, in order) into `rows` at the True positions."""
+    for i, row in zip(np.flatnonzero(where), placed, strict=True):
+        rows[i] = row
 
 
-def _gps_raw_int(decoders, believed, members, records, times, columns) -> list[object]:
-    """TelemetryDecoder._gps_raw_int, per row: lat, lon deg; velocity (east, north) m/s from speed and course."""
+def _gps_raw_int(records, agents, t_s, counters, columns: Columns) -> list[object]:
+    """TelemetryDecoder._gps_raw_int, per row: lat, lon deg; velocity (east, north) m/s from speed and course
+    (the trigonometry in Python's math, as the decoder does it, for the same last bit)."""
+    rows: list[object] = [None] * len(records)
+    fixed = records["fix_type"] >= 2
+    for j in np.flatnonzero(~fixed):
+        counters[j].no_fix += 1
+    moving = fixed & (records["vel"] != UINT16_MAX) & (records["cog"] != UINT16_MAX)
     lat, lon = records["lat"] / 1e7, records["lon"] / 1e7
-    out: list[object] = []
-    for j, i in enumerate(members):
-        frame = believed[i]
-        record = records[j]
-        if record["fix_type"] < 2:
-            decoders[frame.decoder].counters.no_fix += 1
-            out.append(None)
-            continue
-        vel, cog = int(record["vel"]), int(record["cog"])
-        common = {"agents": _agent(decoders, frame), "t_s": times[frame.decoder], "lat_deg": lat[j], "lon_deg": lon[j]}
-        if vel != UINT16_MAX and cog != UINT16_MAX:
-            speed, course = vel / 100.0, math.radians(cog / 100.0)
-            velocity = (speed * math.sin(course), speed * math.cos(course))
-            out.append(columns.add((GpsFix, (True, True, True, True, True)), **common, velocity_mps=velocity))
-        else:
-            out.append(columns.add((GpsFix, (True, True, True, True, False)), **common))
-    return out
+    if moving.any():
+        speed = records["vel"][moving] / 100.0
+        course = [math.radians(c / 100.0) for c in records["cog"][moving].tolist()]
+        velocity = np.array([(s * math.sin(c), s * math.cos(c)) for s, c in zip(speed.tolist(), course, strict=True)])
+        placed = columns.add((GpsFix, (True, True, True, True, True)), agents=agents[moving], t_s=t_s[moving],
+                             lat_deg=lat[moving], lon_deg=lon[moving], velocity_mps=velocity)  # fmt: skip
+        _place(rows, moving, placed)
+    still = fixed & ~moving
+    if still.any():
+        placed = columns.add((GpsFix, (True, True, True, True, False)), agents=agents[still], t_s=t_s[still],
+                             lat_deg=lat[still], lon_deg=lon[still])  # fmt: skip
+        _place(rows, still, placed)
+    return rows
 
 
-def _global_position_int(decoders, believed, members, records, times, columns) -> list[object]:
+def _global_position_int(records, agents, t_s, counters, columns: Columns) -> list[object]:
     """TelemetryDecoder._global_position_int (the decoder wants the fused position): velocity from NED cm/s."""
-    out: list[object] = []
-    for j, i in enumerate(members):
-        frame = believed[i]
-        record = records[j]
-        if record["lat"] == 0 and record["lon"] == 0:
-            decoders[frame.decoder].counters.no_fix += 1
-            out.append(None)
-            continue
-        velocity = (int(record["vy"]) / 100.0, int(record["vx"]) / 100.0)
-        row = columns.add(
-            (GpsFix, (True, True, True, True, True)),
-            agents=_agent(decoders, frame),
-            t_s=times[frame.decoder],
-            lat_deg=int(record["lat"]) / 1e7,
-            lon_deg=int(record["lon"]) / 1e7,
-            velocity_mps=velocity,
-        )
-        out.append(row)
-    return out
+    rows: list[object] = [None] * len(records)
+    known = (records["lat"] != 0) | (records["lon"] != 0)
+    for j in np.flatnonzero(~known):
+        counters[j].no_fix += 1  # the autopilot has no position (yet)
+    if known.any():
+        r = records[known]
+        velocity = np.column_stack((r["vy"] / 100.0, r["vx"] / 100.0))  # NED x north, y east -> east, north
+        placed = columns.add((GpsFix, (True, True, True, True, True)), agents=agents[known], t_s=t_s[known],
+                             lat_deg=r["lat"] / 1e7, lon_deg=r["lon"] / 1e7, velocity_mps=velocity)  # fmt: skip
+        _place(rows, known, placed)
+    return rows
 
 
-def _attitude(decoders, believed, members, records, times, columns) -> list[object]:
-    """TelemetryDecoder._attitude: heading from the yaw (None when the yaw is not finite)."""
-    out: list[object] = []
-    for j, i in enumerate(members):
-        frame = believed[i]
-        yaw = float(records[j]["yaw"])
-        if not math.isfinite(yaw):
-            out.append(None)
-            continue
-        row = columns.add(
-            (CompassReading, (True, True, True)),
-            agents=_agent(decoders, frame),
-            t_s=times[frame.decoder],
-            heading_rad=heading_from_yaw(yaw),
-        )
-        out.append(row)
-    return out
+def _attitude(records, agents, t_s, counters, columns: Columns) -> list[object]:
+    """TelemetryDecoder._attitude: heading = wrap(pi/2 - yaw), the decoder's arithmetic (numpy's remainder is
+    Python's float modulo); no reading where the yaw is not finite."""
+    rows: list[object] = [None] * len(records)
+    yaw = records["yaw"].astype(np.float64)
+    finite = np.isfinite(yaw)
+    if finite.any():
+        heading = np.pi - np.remainder(np.pi - (np.pi / 2.0 - yaw[finite]), 2.0 * np.pi)
+        placed = columns.add((CompassReading, (True, True, True)), agents=agents[finite], t_s=t_s[finite],
+                             heading_rad=heading)  # fmt: skip
+        _place(rows, finite, placed)
+    return rows
 
 
-def _imu(decoders, believed, members, records, times, columns) -> list[object]:
+def _imu(records, agents, t_s, counters, columns: Columns) -> list[object]:
     """TelemetryDecoder._imu: body acceleration (x forward, y left) m/s^2 from mG, yaw rate (CCW) from mrad/s."""
     g = STANDARD_GRAVITY_MPS2 / 1000.0
-    ax, ay = records["xacc"] * g, -records["yacc"].astype(np.int64) * g
+    accel = np.column_stack((records["xacc"] * g, -records["yacc"].astype(np.int64) * g))
     rate = -records["zgyro"].astype(np.int64) / 1000.0
-    out: list[object] = []
-    for j, i in enumerate(members):
-        frame = believed[i]
-        row = columns.add(
-            (ImuReading, (True, True, True, True)),
-            agents=_agent(decoders, frame),
-            t_s=times[frame.decoder],
-            accel_body_mps2=(ax[j], ay[j]),
-            gyro_z_radps=rate[j],
-        )
-        out.append(row)
-    return out
+    return columns.add((ImuReading, (True, True, True, True)), agents=agents, t_s=t_s, accel_body_mps2=accel,
+                       gyro_z_radps=rate)  # fmt: skip
 
 
 _COLUMN_CONVERTERS = {

@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.onboard.vehicle_link import VehicleLink, receive_all
 from firmware_bridge.batch_decoder import Row, decode_batch
-from firmware_bridge.decoder import TelemetryDecoder
+from firmware_bridge.decoder import TelemetryDecoder, heading_from_yaw
 from firmware_bridge.telemetry import TelemetryEncoder
 from sitl.vehicles.reading_batches import merge_by_round
 
@@ -184,3 +184,24 @@ def test_links_receive_all_at_once_as_each_alone() -> None:
             assert all(_same(x, y) for x, y in zip(w, g, strict=True)) and len(w) == len(g)
             assert a.last_heartbeat == t.last_heartbeat and a.watch.last_beat_s == t.watch.last_beat_s
             assert _same(a.battery, t.battery) and a.acks == t.acks
+
+
+def test_column_wise_heading_is_the_decoders_heading_to_the_last_bit() -> None:
+    """The ATTITUDE column's heading (numpy remainder) against `heading_from_yaw` (Python's float modulo) on
+    float32 yaws as they come off the wire, the edges included."""
+    rng = np.random.default_rng(3)
+    edges = [0.0, -0.0, math.pi, -math.pi, math.pi / 2, -math.pi / 2, 1e-45, -1e-45, 3.4e38, -3.4e38]
+    yaws = np.concatenate((rng.uniform(-4, 4, 100_000), rng.normal(0, 1e3, 1000), edges)).astype(np.float32)
+    enc = TelemetryEncoder(1)
+    decoders = [TelemetryDecoder(lambda: 0.0, agent=0, source_system=1, source_component=1)]
+    for start in range(0, len(yaws), 5000):
+        frames = [
+            enc.encoder.frame(mavlink.MAVLink_attitude_message, 0, 0.0, 0.0, float(y), 0.0, 0.0, 0.0)
+            for y in yaws[start : start + 5000]
+        ]
+        chunk = b"".join(frames)
+        per_decoder, columns = decode_batch(decoders, [chunk])
+        rows = per_decoder[0]
+        got = columns.take(rows[0].key, [r.index for r in rows]).heading_rad
+        want = [heading_from_yaw(float(y)) for y in yaws[start : start + 5000]]
+        assert np.array_equal(got, np.array(want))
