@@ -16,12 +16,16 @@ from pathlib import Path
 
 import pytest
 from test_examples import load_example
-from test_process_fleet import aggregation_scenario, free_ports
+from test_process_fleet import SPEED, aggregation_scenario, free_ports
 
 from sitl.experiments.scenario import scenario_to_toml, validate_scenario
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")
+# How long (simulated s) each of the script's waits may take: 90 wall s at 5x before the fleets ran at SPEED (3x,
+# tests/test_process_fleet.py), which a slow 2-core host needs: at 5x its world fell behind and the vessels
+# heard their vehicles go silent.
+MISSION_SIMULATED_S = 450.0
 
 
 def test_mission_script_aggregates_a_process_fleet(tmp_path: Path) -> None:
@@ -33,14 +37,15 @@ def test_mission_script_aggregates_a_process_fleet(tmp_path: Path) -> None:
     path.write_text(scenario_to_toml(scenario))
     out = tmp_path / "run"
     fleet = subprocess.Popen(
-        [sys.executable, "-m", "sitl.cli", "fleet", str(path), "--processes", "--external-gcs", "--speed", "5",
+        [sys.executable, "-m", "sitl.cli", "fleet", str(path), "--processes", "--external-gcs", "--speed", str(SPEED),
          "--base-port", str(base), "--mesh-port", str(mesh), "--gcs-port", str(gcs), "--out", str(out), "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
         example = load_example("mission_aggregation")
         args = ["--connection", f"udpin:127.0.0.1:{gcs}", "--vessels", "5", "--far-p0", "100", "--near-p0", "5"]
-        args += ["--shrink", "10", "--spread", "3", "--settle", "2", "--timeout", "90", "--discover-timeout", "90"]
+        wait = str(round(MISSION_SIMULATED_S / SPEED))  # the script's timeouts are wall seconds
+        args += ["--shrink", "10", "--spread", "3", "--settle", "2", "--timeout", wait, "--discover-timeout", wait]
         started = time.monotonic()
         code = example.main(args)
         assert code == 0, f"the mission failed after {time.monotonic() - started:.0f} s"
