@@ -114,7 +114,8 @@ class MavlinkTransport:
         vessels decode from it."""
         frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
         encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick, ticked=True)
-        # Decoded vehicle by vehicle, fused as one batch per kind and round (sitl.vehicles.reading_batches).
+        # Decoded all at once (firmware_bridge.batch_decoder), fused as one batch per kind and round
+        # (sitl.vehicles.reading_batches).
         decoded, columns = receive_all(self.links, [bytes(data) for data in frames])
         return merge_by_round(decoded, columns)
 
