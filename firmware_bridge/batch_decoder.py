@@ -50,17 +50,6 @@ def _wire_dtype(message_class: type) -> np.dtype:
                      zip(message_class.ordered_fieldnames, codes, strict=True)])  # fmt: skip
 
 
-# The types decoded column-wise and the reading kind each becomes.
-_COLUMNAR = {
-    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: GpsFix,
-    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: GpsFix,
-    mavlink.MAVLINK_MSG_ID_ATTITUDE: CompassReading,
-    mavlink.MAVLINK_MSG_ID_SCALED_IMU: ImuReading,
-    mavlink.MAVLINK_MSG_ID_RAW_IMU: ImuReading,
-}
-_DTYPES = {msg_id: _wire_dtype(mavlink.mavlink_map[msg_id]) for msg_id in _COLUMNAR}
-
-
 class Row(NamedTuple):
     """One reading's row in a `Columns` store: `key` = (reading type, which optional fields it has), as
     `sitl.vehicles.reading_batches` groups readings; `index` into that key's columns."""
@@ -304,3 +293,6 @@ _COLUMN_CONVERTERS = {
     mavlink.MAVLINK_MSG_ID_SCALED_IMU: _imu,
     mavlink.MAVLINK_MSG_ID_RAW_IMU: _imu,
 }
+# The types decoded column-wise, and their payloads as numpy records.
+_COLUMNAR = frozenset(_COLUMN_CONVERTERS)
+_DTYPES = {msg_id: _wire_dtype(mavlink.mavlink_map[msg_id]) for msg_id in _COLUMNAR}
