@@ -21,6 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from behaviors.base import as_complex
+
 IntArray = NDArray[np.intp]
 KeyArray = NDArray[np.int64]
 
@@ -110,10 +112,10 @@ class NeighbourPairs:
     def in_range(self, position: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(C,) which candidates are within range_m of each other at `position` ((n, 2) m), by the test of
         cKDTree.query_pairs (squared distance <= range_m * range_m)."""
-        # contiguous copies of the agents' coordinates: gathers from them are ~2x faster than from the columns
-        x, y = np.ascontiguousarray(position[: self.n, 0]), np.ascontiguousarray(position[: self.n, 1])
-        dx = x[self._first] - x[self._second]
-        dy = y[self._first] - y[self._second]
+        # each (x, y) gathered as one complex number (two gathers, not four); the same float operations
+        points = as_complex(position[: self.n])
+        d = points[self._first] - points[self._second]
+        dx, dy = d.real.copy(), d.imag.copy()
         dx *= dx
         dy *= dy
         dx += dy
