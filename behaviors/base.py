@@ -128,8 +128,8 @@ class View:
 
     def sum_pairs(self, values: FloatArray) -> FloatArray:
         """Sum per-pair values (M,) or (M, d) onto their listener: (n,) or (n, d)."""
-        if values.ndim == 1:
-            return np.bincount(self.pair_i, weights=values, minlength=self.n)
+        if values.ndim == 1:  # (bincount gives integers when there are no pairs)
+            return np.bincount(self.pair_i, weights=values, minlength=self.n).astype(np.float64, copy=False)
         out = np.empty((self.n, values.shape[1]))
         for col in range(values.shape[1]):
             out[:, col] = np.bincount(self.pair_i, weights=values[:, col], minlength=self.n)

@@ -252,10 +252,13 @@ class LockstepFleet:
             rows = np.flatnonzero((self.assignment == k) & self.active)
             if rows.size == 0:
                 continue
-            local[rows] = np.arange(rows.size)
-            keep = local[listener] >= 0
-            view = View(self.table, senses, rows, local[listener[keep]], message[keep], self.t)
-            local[rows] = -1
+            if rows.size == self.n:  # one behaviour for the whole fleet: every listener is its own row
+                view = View(self.table, senses, rows, listener, message, self.t)
+            else:
+                local[rows] = np.arange(rows.size)
+                keep = local[listener] >= 0
+                view = View(self.table, senses, rows, local[listener[keep]], message[keep], self.t)
+                local[rows] = -1
             wish = behavior.step(view)
             velocity[rows] = wish.velocity
             heading[rows] = wish.heading

@@ -115,11 +115,9 @@ class NeighbourPairs:
         # each (x, y) gathered as one complex number (two gathers, not four); the same float operations
         points = as_complex(position[: self.n])
         d = points[self._first] - points[self._second]
-        dx, dy = d.real.copy(), d.imag.copy()
-        dx *= dx
-        dy *= dy
-        dx += dy
+        d2 = d.real * d.real
+        d2 += d.imag * d.imag
         near = np.empty(self._first.size + 1, dtype=bool)
-        np.less_equal(dx, self._range2, out=near[:-1])
+        np.less_equal(d2, self._range2, out=near[:-1])
         near[-1] = False  # kept pairs beyond range_m + skin_m
         return near[self._half]
