@@ -174,7 +174,7 @@ def profile_startup(top: int = 8) -> dict[str, object]:
     inner = {
         f"{Path(f).name}:{name}": round(1e3 * cum, 1)
         for (f, _, name), (_, _, _, cum, _) in stats.stats.items()  # type: ignore[attr-defined]
-        if name in ("__init__", "_build", "_formulate", "_warm_up", "behavior") and "bob_autonomy" in f
+        if name in ("__init__", "_build", "_buoy_qp_functions", "_warm_up", "behavior") and "bob_autonomy" in f
     }
     return {
         "import_ms": None if total is None else round(total / 1e3, 1),

@@ -83,7 +83,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from bob_autonomy.control.mpc import _BufferedCall, _conic, _cpu_over_budget, _SolveError, default_qp_plugin
+from bob_autonomy.control.qp import _BufferedCall, _conic, _cpu_over_budget, _SolveError, default_qp_plugin
 from bob_autonomy.core.arrays import FloatArray
 
 logger = logging.getLogger("bob_autonomy.control.motorboat_control")

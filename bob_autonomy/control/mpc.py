@@ -87,38 +87,23 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
+from bob_autonomy.control.qp import (
+    _PLUGIN_OPTIONS,
+    _BufferedCall,
+    _conic,
+    _cpu_over_budget,
+    _SolveError,
+    default_qp_plugin,
+)
 from bob_autonomy.control.velocity_control import BuoyModel, DiffDriveController
 from bob_autonomy.core.arrays import FloatArray
 
 logger = logging.getLogger("bob_autonomy.control.mpc")
-
-# casadi conic plugins in the order of their measured cost on this problem (cheapest first); proxqp and
-# qrqp are left out (wrong or failed solves on random instances, see the module docstring).
-QP_PLUGINS = ("daqp", "qpoases", "osqp")
-
-_PLUGIN_OPTIONS: dict[str, dict[str, object]] = {
-    "daqp": {},
-    "qpoases": {"printLevel": "none", "sparse": False},
-    "osqp": {
-        "osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "polish": False},
-        "warm_start_primal": True,
-        "warm_start_dual": True,
-    },
-    "proxqp": {},
-    "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
-}
-
-
-def default_qp_plugin() -> str:
-    """The cheapest casadi QP plugin available in this installation (see QP_PLUGINS)."""
-    for plugin in QP_PLUGINS:
-        if ca.has_conic(plugin):
-            return plugin
-    raise RuntimeError(f"none of the casadi QP plugins {QP_PLUGINS} is available")
 
 
 def polygon_normals(sides: int) -> FloatArray:
@@ -150,67 +135,66 @@ def _finite_float(value: object, default: float) -> float:
     return number if math.isfinite(number) else default
 
 
-class _SolveError(RuntimeError):
-    """The solver returned without an optimal solution, or too late, or a non-finite one."""
-
-
-def _over_budget(elapsed_s: float, budget_s: float, what: str = "") -> str:
-    return f"over the time budget ({elapsed_s * 1e3:.2f} ms{what} > {budget_s * 1e3:.2f} ms)"
-
-
-def _cpu_over_budget(cpu_s: float, budget_s: float) -> None:
-    """Raise _SolveError when a solve used more than budget_s of its thread's CPU time (s)."""
-    if cpu_s > budget_s:
-        raise _SolveError(_over_budget(cpu_s, budget_s, " of CPU"))
-
-
-class _BufferedCall:
-    """A casadi Function evaluated through Function.buffer on preallocated numpy arrays.
-
-    inputs / outputs: name -> float64 array of the nonzeros (column-major), alive
-    as long as this object. `shared` arrays (e.g. another function's outputs)
-    are bound as inputs of the same name, so one function writes into the next.
-    """
-
-    def __init__(
-        self, function: ca.Function, shared: dict[str, FloatArray] | None = None, failure_label: str | None = None
-    ) -> None:
-        self.function = function
-        self.failure_label = failure_label or function.name()
-        self.buffer, self._evaluate = function.buffer()
-        self.inputs: dict[str, FloatArray] = {}
-        self.outputs: dict[str, FloatArray] = {}
-        for i, name in enumerate(function.name_in()):
-            array = shared[name] if shared and name in shared else np.zeros(function.nnz_in(i))
-            if array.size:
-                self.buffer.set_arg(i, memoryview(array))
-            self.inputs[name] = array
-        for i, name in enumerate(function.name_out()):
-            array = np.zeros(function.nnz_out(i))
-            if array.size:
-                self.buffer.set_res(i, memoryview(array))
-            self.outputs[name] = array
-
-    def __call__(self) -> None:
-        try:
-            self._evaluate()
-        except RuntimeError:  # a conic solver (built with error_on_fail) did not solve: say its status
-            raise _SolveError(f"{self.failure_label}: {self.buffer.stats().get('return_status')}") from None
-        if self.buffer.ret() != 0:
-            raise _SolveError(f"{self.function.name()} returned {self.buffer.ret()}")
-
-    def stats(self) -> dict[str, object]:
-        return self.buffer.stats()
-
-
-def _conic(name: str, plugin: str, hessian: ca.Sparsity, constraints: ca.Sparsity) -> ca.Function:
-    """A conic QP solver that raises when it does not solve (error_on_fail), so a solve is checked without
-    FunctionBuffer.stats(), which costs about ten times the solve of these small QPs."""
-    options: dict[str, object] = {"error_on_fail": True, **_PLUGIN_OPTIONS.get(plugin, {})}
-    return ca.conic(name, plugin, {"h": hessian, "a": constraints}, options)
-
-
 # --------------------------------------------------------------------------- buoy
+
+
+@lru_cache(maxsize=32)
+def _buoy_qp_functions(
+    model: BuoyModel,
+    dt_s: float,
+    horizon: int,
+    polygon_sides: int,
+    tracking_weight: float,
+    input_change_weight: float,
+    solver: str,
+) -> tuple[dict[str, ca.SX], ca.Function, ca.Function, FloatArray]:
+    """(problem, QP data Function p -> (h, g), conic solver, constraint matrix nonzeros) of BuoyMpc: the QP in
+    casadi SX, x (2N scaled thrusts), p (v0, w, v_desired, previous z), f, g (see the module docstring)."""
+    c1, c2, mass = model.linear_drag_n_per_mps, model.quadratic_drag_n_per_mps2, model.mass_kg
+    scale, dt = model.max_thrust_n, dt_s
+    p = ca.SX.sym("p", 8)
+    v0, water, desired, z_prev = p[0:2], p[2:4], p[4:6], p[6:8]
+    z = ca.SX.sym("z", 2 * horizon)
+
+    r0 = v0 - water
+    speed = ca.sqrt(ca.sumsqr(r0) + 1e-18)
+    along = r0 / speed
+    outer = along @ along.T
+    across = ca.SX.eye(2) - outer
+    a = c1 + c2 * speed  # eigenvalue of J across the motion, N per m/s
+    b = a + c2 * speed  # eigenvalue of J along the motion
+
+    def phi1(x: ca.SX) -> ca.SX:  # (1 - exp(-x)) / x, limit 1 at 0
+        safe = ca.if_else(x < 1e-9, 1.0, x)
+        return ca.if_else(x < 1e-9, 1.0 - 0.5 * x, (1.0 - ca.exp(-safe)) / safe)
+
+    ad = ca.exp(-a * dt / mass) * across + ca.exp(-b * dt / mass) * outer
+    bd = (dt / mass) * (phi1(a * dt / mass) * across + phi1(b * dt / mass) * outer)
+    jac = a * across + b * outer
+    offset = jac @ water + c2 * speed * r0  # u + offset drives -J v: the affine drag terms
+
+    cost = 0
+    v, previous = v0, z_prev
+    for k in range(horizon):
+        zk = z[2 * k : 2 * k + 2]
+        v = ad @ v + bd @ (scale * zk + offset)
+        cost += tracking_weight * ca.sumsqr(v - desired) + input_change_weight * ca.sumsqr(zk - previous)
+        previous = zk
+    normals = ca.DM(polygon_normals(polygon_sides))
+    rows = [normals @ z[2 * k : 2 * k + 2] for k in range(horizon)]
+    if horizon > 1:
+        rows.append(z[2:] - z[:-2])
+    problem = {"x": z, "p": p, "f": cost, "g": ca.vertcat(*rows)}
+
+    hessian = ca.hessian(cost, z)[0]
+    gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
+    constraints = ca.jacobian(problem["g"], z)
+    if ca.depends_on(constraints, ca.vertcat(z, p)):
+        raise AssertionError("constraint matrix must be constant")
+    values = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
+    data = ca.Function("buoy_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
+    conic = _conic("buoy_mpc_qp", solver, hessian.sparsity(), constraints.sparsity())
+    return problem, data, conic, values
 
 
 @dataclass(frozen=True)
@@ -286,69 +270,27 @@ class BuoyMpc:
         self.last_plan_world_n: FloatArray | None = None
         self._last_thrust: Pair = (0.0, 0.0)
         self._bounds_limit = math.nan
-        self.problem = self._formulate()
         self._build()
         self._warm_up()
 
     # ------------------------------------------------------------------ formulation
 
-    def _formulate(self) -> dict[str, ca.SX]:
-        """The QP in casadi SX: x (2N scaled thrusts), p (v0, w, v_desired, previous z), f, g."""
-        m, n_steps, dt = self.model, self.horizon, self.dt_s
-        c1, c2, mass = m.linear_drag_n_per_mps, m.quadratic_drag_n_per_mps2, m.mass_kg
-        scale = m.max_thrust_n
-        p = ca.SX.sym("p", 8)
-        v0, water, desired, z_prev = p[0:2], p[2:4], p[4:6], p[6:8]
-        z = ca.SX.sym("z", 2 * n_steps)
-
-        r0 = v0 - water
-        speed = ca.sqrt(ca.sumsqr(r0) + 1e-18)
-        along = r0 / speed
-        outer = along @ along.T
-        across = ca.SX.eye(2) - outer
-        a = c1 + c2 * speed  # eigenvalue of J across the motion, N per m/s
-        b = a + c2 * speed  # eigenvalue of J along the motion
-
-        def phi1(x: ca.SX) -> ca.SX:  # (1 - exp(-x)) / x, limit 1 at 0
-            safe = ca.if_else(x < 1e-9, 1.0, x)
-            return ca.if_else(x < 1e-9, 1.0 - 0.5 * x, (1.0 - ca.exp(-safe)) / safe)
-
-        ad = ca.exp(-a * dt / mass) * across + ca.exp(-b * dt / mass) * outer
-        bd = (dt / mass) * (phi1(a * dt / mass) * across + phi1(b * dt / mass) * outer)
-        jac = a * across + b * outer
-        offset = jac @ water + c2 * speed * r0  # u + offset drives -J v: the affine drag terms
-
-        cost = 0
-        v, previous = v0, z_prev
-        for k in range(n_steps):
-            zk = z[2 * k : 2 * k + 2]
-            v = ad @ v + bd @ (scale * zk + offset)
-            cost += self.tracking_weight * ca.sumsqr(v - desired) + self.input_change_weight * ca.sumsqr(zk - previous)
-            previous = zk
-        normals = ca.DM(self.normals)
-        rows = [normals @ z[2 * k : 2 * k + 2] for k in range(n_steps)]
-        if n_steps > 1:
-            rows.append(z[2:] - z[:-2])
-        return {"x": z, "p": p, "f": cost, "g": ca.vertcat(*rows)}
-
     def _build(self) -> None:
-        """The QP data function and the conic solver, chained through preallocated buffers."""
-        z, p, cost, g = self.problem["x"], self.problem["p"], self.problem["f"], self.problem["g"]
-        hessian = ca.hessian(cost, z)[0]
-        gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
-        constraints = ca.jacobian(g, z)
-        if ca.depends_on(constraints, ca.vertcat(z, p)):
-            raise AssertionError("constraint matrix must be constant")
-        self._constraint_values = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
-        data = ca.Function("buoy_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
-        self._data = _BufferedCall(data)
-        self._qp = _BufferedCall(
-            _conic("buoy_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()),
-            self._data.outputs,
+        """This controller's buffers on the QP's casadi Functions (built once per model and tuning and shared: a
+        fleet of identical buoys builds one), with the bounds that depend on max_thrust_change_n alone."""
+        self.problem, data, conic, constraint_values = _buoy_qp_functions(
+            self.model,
+            self.dt_s,
+            self.horizon,
+            self.polygon_sides,
+            self.tracking_weight,
+            self.input_change_weight,
             self.solver,
         )
+        self._data = _BufferedCall(data)
+        self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         qp = self._qp.inputs
-        qp["a"][:] = self._constraint_values
+        qp["a"][:] = constraint_values
         n_poly = self.polygon_sides * self.horizon
         qp["lba"][n_poly:] = -self.max_thrust_change_n / self.model.max_thrust_n
         qp["uba"][n_poly:] = self.max_thrust_change_n / self.model.max_thrust_n
@@ -634,45 +576,28 @@ class DiffDriveMpc:
 
     def _model(self, linear: bool) -> dict[str, ca.SX]:
         """Cost of the scaled wheel plan z (2N,) given p = (d (2,) in the heading frame, z_prev (2,), sbar)."""
-        vmax, base, dt = self.max_wheel_speed_mps, self.wheel_base_m, self.dt_s
-        z = ca.SX.sym("z", 2 * self.horizon)
-        p = ca.SX.sym("p", 5)
-        desired, z_prev, nominal = p[0:2], p[2:4], p[4]
-        cost, delta, previous = 0, 0, z_prev
-        for k in range(self.horizon):
-            zk = z[2 * k : 2 * k + 2]
-            forward = vmax * 0.5 * (zk[0] + zk[1])
-            turn = vmax * (zk[1] - zk[0]) / base * dt
-            mid = delta + 0.5 * turn
-            # linear: first order at (s, delta) = (sbar, 0); nonlinear: the unicycle as is.
-            exact = forward * ca.vertcat(ca.cos(mid), ca.sin(mid))
-            velocity = ca.vertcat(forward, nominal * mid) if linear else exact
-            cost += self.tracking_weight * ca.sumsqr(velocity - desired) / vmax**2
-            cost += self.input_change_weight * ca.sumsqr(zk - previous)
-            delta, previous = delta + turn, zk
-        # g: the forward speed of each step, scaled (>= 0 when the robot must face along its wish).
-        forward_speeds = ca.vertcat(*[0.5 * (z[2 * k] + z[2 * k + 1]) for k in range(self.horizon)])
-        return {"x": z, "p": p, "f": cost, "g": forward_speeds}
+        return _ebot_problem(*self._tuning(), linear)
+
+    def _tuning(self) -> tuple[float, float, float, int, float, float]:
+        return (
+            self.max_wheel_speed_mps,
+            self.wheel_base_m,
+            self.dt_s,
+            self.horizon,
+            self.tracking_weight,
+            self.input_change_weight,
+        )
 
     def _build_linear(self) -> None:
-        problem = self._model(linear=True)
-        z, p, cost = problem["x"], problem["p"], problem["f"]
-        hessian = ca.hessian(cost, z)[0]
-        gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
-        constraints = ca.jacobian(problem["g"], z)
-        data = ca.Function("ebot_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
+        """This controller's buffers on the QP's casadi Functions (built once per tuning and shared by a fleet)."""
+        self.problem, data, conic, constraint_values = _ebot_qp_functions(*self._tuning(), self.solver)
         self._data = _BufferedCall(data)
-        self._qp = _BufferedCall(
-            _conic("ebot_mpc_qp", self.solver, hessian.sparsity(), constraints.sparsity()),
-            self._data.outputs,
-            self.solver,
-        )
-        self._qp.inputs["a"][:] = np.array(ca.evalf(constraints).nonzeros(), dtype=float)
+        self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
+        self._qp.inputs["a"][:] = constraint_values
         self._qp.inputs["lbx"][:] = -1.0
         self._qp.inputs["ubx"][:] = 1.0
         self._qp.inputs["lba"][:] = -1.0  # inactive (wheels within +-1); 0 when forward only
         self._qp.inputs["uba"][:] = 1.0
-        self.problem = problem
 
     def _build_nonlinear(self) -> None:
         problem = self._model(linear=False)
@@ -784,3 +709,50 @@ class DiffDriveMpc:
         wheels = np.clip(np.nan_to_num(wheels), -vmax, vmax)
         self._last_wheels = wheels
         return DiffDriveMpcResult(wheels, ok, used_fallback, elapsed, status)
+
+
+def _ebot_problem(
+    vmax: float, base: float, dt: float, horizon: int, tracking_weight: float, input_change_weight: float, linear: bool
+) -> dict[str, ca.SX]:
+    """DiffDriveMpc's problem: the cost of the scaled wheel plan z (2N,) given p = (d (2,) in the heading frame,
+    z_prev (2,), sbar), and g the scaled forward speed of each step."""
+    z = ca.SX.sym("z", 2 * horizon)
+    p = ca.SX.sym("p", 5)
+    desired, z_prev, nominal = p[0:2], p[2:4], p[4]
+    cost, delta, previous = 0, 0, z_prev
+    for k in range(horizon):
+        zk = z[2 * k : 2 * k + 2]
+        forward = vmax * 0.5 * (zk[0] + zk[1])
+        turn = vmax * (zk[1] - zk[0]) / base * dt
+        mid = delta + 0.5 * turn
+        # linear: first order at (s, delta) = (sbar, 0); nonlinear: the unicycle as is.
+        exact = forward * ca.vertcat(ca.cos(mid), ca.sin(mid))
+        velocity = ca.vertcat(forward, nominal * mid) if linear else exact
+        cost += tracking_weight * ca.sumsqr(velocity - desired) / vmax**2
+        cost += input_change_weight * ca.sumsqr(zk - previous)
+        delta, previous = delta + turn, zk
+    # g: the forward speed of each step, scaled (>= 0 when the robot must face along its wish).
+    forward_speeds = ca.vertcat(*[0.5 * (z[2 * k] + z[2 * k + 1]) for k in range(horizon)])
+    return {"x": z, "p": p, "f": cost, "g": forward_speeds}
+
+
+@lru_cache(maxsize=32)
+def _ebot_qp_functions(
+    vmax: float,
+    base: float,
+    dt: float,
+    horizon: int,
+    tracking_weight: float,
+    input_change_weight: float,
+    solver: str,
+) -> tuple[dict[str, ca.SX], ca.Function, ca.Function, FloatArray]:
+    """(problem, QP data Function p -> (h, g), conic solver, constraint matrix nonzeros) of the linear
+    DiffDriveMpc."""
+    problem = _ebot_problem(vmax, base, dt, horizon, tracking_weight, input_change_weight, True)
+    z, p, cost = problem["x"], problem["p"], problem["f"]
+    hessian = ca.hessian(cost, z)[0]
+    gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
+    constraints = ca.jacobian(problem["g"], z)
+    data = ca.Function("ebot_mpc_qp_data", [p], [hessian, gradient], ["p"], ["h", "g"], {"cse": True})
+    conic = _conic("ebot_mpc_qp", solver, hessian.sparsity(), constraints.sparsity())
+    return problem, data, conic, np.array(ca.evalf(constraints).nonzeros(), dtype=float)
