@@ -36,7 +36,9 @@ import time
 import casadi as ca
 import numpy as np
 
-from bob_autonomy.control.mpc import QP_PLUGINS, BuoyMpc, DiffDriveMpc
+from bob_autonomy.control.ebot_mpc import DiffDriveMpc, _ebot_qp_functions
+from bob_autonomy.control.mpc import BuoyMpc, _buoy_qp_functions
+from bob_autonomy.control.qp import QP_PLUGINS
 from bob_autonomy.control.velocity_control import BuoyVelocityController, DiffDriveController
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams
 
@@ -225,17 +227,26 @@ def ebot_random(make, calls: int, seed: int) -> int:
 
 
 def construction_ms(repeats: int = 10) -> dict[str, float]:
-    """Median wall ms to construct a BuoyMpc and a DiffDriveMpc (each builds its solver and warms it up): what
-    every autonomy process pays once at start (and a buoy again when the autopilot reports its top speed)."""
+    """Median wall ms to construct a BuoyMpc and a DiffDriveMpc: building the QP's casadi Functions and one
+    warm-up solve (what every autonomy process pays once at start, and a buoy again when the autopilot reports
+    its top speed), and another controller of the same tuning in the same process, which shares the Functions
+    (a lockstep fleet's 45 buoys)."""
     out = {}
-    for name, make in (("buoy", lambda: BuoyMpc(dt_s=0.1)), ("ebot", lambda: DiffDriveMpc())):
+    makers = (
+        ("buoy", lambda: BuoyMpc(dt_s=0.1), _buoy_qp_functions),
+        ("ebot", lambda: DiffDriveMpc(), _ebot_qp_functions),
+    )
+    for name, make, functions in makers:
         make()  # the first loads casadi's plugin libraries
-        times = []
-        for _ in range(repeats):
-            start = time.perf_counter()
-            make()
-            times.append(time.perf_counter() - start)
-        out[name] = 1e3 * float(np.median(times))
+        for kind, clear in (("", True), ("_shared", False)):
+            times = []
+            for _ in range(repeats):
+                if clear:
+                    functions.cache_clear()
+                start = time.perf_counter()
+                make()
+                times.append(time.perf_counter() - start)
+            out[name + kind] = 1e3 * float(np.median(times))
     return out
 
 
@@ -250,7 +261,9 @@ def main() -> None:
     build_ms = construction_ms()
     print(
         f"construction (formulate, build the casadi Functions, one warm-up solve), median of 10: buoy "
-        f"{build_ms['buoy']:.1f} ms, eBot {build_ms['ebot']:.1f} ms (once per vessel: no cache on disk needed)"
+        f"{build_ms['buoy']:.1f} ms, eBot {build_ms['ebot']:.1f} ms (once per vessel: no cache on disk needed); "
+        f"another of the same tuning in the same process (shared Functions): buoy {build_ms['buoy_shared']:.1f} ms, "
+        f"eBot {build_ms['ebot_shared']:.1f} ms"
     )
     run = run_buoy(args.steps, args.seed)
     times_ms = 1e3 * run["times"]

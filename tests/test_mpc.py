@@ -17,7 +17,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc, polygon_normals
+from bob_autonomy.control.ebot_mpc import DiffDriveMpc
+from bob_autonomy.control.mpc import BuoyMpc, polygon_normals
 from bob_autonomy.control.velocity_control import BuoyModel
 
 MODEL = BuoyModel()

@@ -13,7 +13,8 @@ import time
 import numpy as np
 import pytest
 
-from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc
+from bob_autonomy.control.ebot_mpc import DiffDriveMpc
+from bob_autonomy.control.mpc import BuoyMpc
 
 BUDGET_S = 0.02
 

@@ -4,6 +4,8 @@ CPU-time budget check."""
 
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 import numpy as np
 
@@ -92,3 +94,23 @@ def _conic(name: str, plugin: str, hessian: ca.Sparsity, constraints: ca.Sparsit
     FunctionBuffer.stats(), which costs about ten times the solve of these small QPs."""
     options: dict[str, object] = {"error_on_fail": True, **_PLUGIN_OPTIONS.get(plugin, {})}
     return ca.conic(name, plugin, {"h": hessian, "a": constraints}, options)
+
+
+Pair = tuple[float, float]
+
+
+def _pair(value: object) -> Pair:
+    """The two entries of a (2,) vector as floats, non-finite ones replaced by 0."""
+    array = np.asarray(value, dtype=float).reshape(2)
+    x, y = float(array[0]), float(array[1])
+    return (x if math.isfinite(x) else 0.0, y if math.isfinite(y) else 0.0)
+
+
+def _vector2(value: object) -> FloatArray:
+    """A float (2,) copy of value with non-finite entries replaced by 0."""
+    return np.array(_pair(value))
+
+
+def _finite_float(value: object, default: float) -> float:
+    number = float(value)  # type: ignore[arg-type]
+    return number if math.isfinite(number) else default

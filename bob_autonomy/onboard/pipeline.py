@@ -17,8 +17,9 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
+from bob_autonomy.control.ebot_mpc import DiffDriveMpc
 from bob_autonomy.control.motorboat_control import MotorboatCommand, MotorboatController, MotorboatModel, MotorboatMpc
-from bob_autonomy.control.mpc import BuoyMpc, DiffDriveMpc
+from bob_autonomy.control.mpc import BuoyMpc
 from bob_autonomy.control.velocity_control import BuoyModel, BuoyVelocityController, DiffDriveController
 from bob_autonomy.core.arrays import wrap
 from bob_autonomy.core.geodesy import LocalFrame
