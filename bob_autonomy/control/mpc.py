@@ -405,6 +405,11 @@ class BuoyMpc:
         call = self._prepare(
             desired_velocity_mps, velocity_mps, water_velocity_mps, heading_rad, max_thrust_n, previous_thrust_world_n
         )
+        return self._solve_call(call)
+
+    def _solve_call(self, call: _Call) -> MpcResult:
+        """The QP of a prepared call solved on its own (bob_autonomy.control.buoy_mpc_batch solves many at once),
+        or the fallback after any failure, then the command."""
         if not call.solving:
             return self._finish(call, None, 0.0)
         start, cpu = time.perf_counter(), time.thread_time()

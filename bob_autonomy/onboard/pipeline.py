@@ -17,6 +17,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
+from bob_autonomy.control.buoy_mpc_batch import BuoyMpcBatch
 from bob_autonomy.control.ebot_mpc import DiffDriveMpc
 from bob_autonomy.control.motorboat_control import MotorboatCommand, MotorboatController, MotorboatModel, MotorboatMpc
 from bob_autonomy.control.mpc import BuoyMpc
@@ -81,6 +82,8 @@ class BuoyPipeline:
             if self.use_mpc
             else []
         )
+        # In simulated time (no budget) a fleet's solves are made together, with the same results.
+        self.mpc_batch = BuoyMpcBatch(self.mpcs) if BuoyMpcBatch.fits(self.mpcs) else None
         self.thrust_world_n = np.zeros((n, 2))  # last command, world frame (the EKF's known input)
         self.ignored = 0  # readings of kinds a buoy does not use (wheel travel, ...)
         self.last_fix_xy = np.full((n, 2), np.nan)  # the newest GPS fix of each vessel (local frame, m) and its time
@@ -160,10 +163,13 @@ class BuoyPipeline:
         velocity, heading = estimate.velocity, estimate.heading
         if self.use_mpc and not idle:
             water = self.drift()
-            results = [
-                mpc.solve(wish_mps[k], velocity[k], water[k], heading[k], self.max_thrust_n[k])
-                for k, mpc in enumerate(self.mpcs)
-            ]
+            if self.mpc_batch is not None:
+                results = self.mpc_batch.solve(wish_mps, velocity, water, heading, self.max_thrust_n)
+            else:
+                results = [
+                    mpc.solve(wish_mps[k], velocity[k], water[k], heading[k], self.max_thrust_n[k])
+                    for k, mpc in enumerate(self.mpcs)
+                ]
             self.thrust_world_n = np.array([r.thrust_world_n for r in results]).reshape(-1, 2)
             return np.array([r.thrust_body_n for r in results]).reshape(-1, 2)
         body = self.simple.thrust(wish_mps, velocity, heading, self.max_thrust_n)

@@ -1,0 +1,83 @@
+"""bob_autonomy/control/buoy_mpc_batch.py: a fleet's buoy MPCs solved in one mapped call give, bit for bit, the
+commands each controller's own `solve` gives, over many steps (each command the next step's previous thrust),
+with weak batteries, vessels without thrust, non-finite inputs, and when the mapped call fails."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bob_autonomy.control.buoy_mpc_batch import BuoyMpcBatch
+from bob_autonomy.control.mpc import BuoyMpc
+from bob_autonomy.control.qp import _SolveError
+
+N = 12
+FIELDS = ("thrust_body_n", "thrust_world_n", "ok", "fallback", "status")
+
+
+def fleet(n: int = N) -> list[BuoyMpc]:
+    return [BuoyMpc(time_budget_s=math.inf) for _ in range(n)]
+
+
+def random_step(rng: np.random.Generator, n: int = N) -> tuple[np.ndarray, ...]:
+    desired = rng.uniform(-0.9, 0.9, (n, 2))
+    velocity = rng.uniform(-0.9, 0.9, (n, 2))
+    water = rng.normal(0.0, 0.15, (n, 2))
+    heading = rng.uniform(-4.0, 4.0, n)
+    limit = rng.choice([45.0, 30.0, 12.5, 0.0, -3.0], n, p=[0.5, 0.2, 0.15, 0.1, 0.05])
+    for array in (desired, velocity, water):  # now and then a reading the estimator could not give
+        array[rng.random(n) < 0.05, 0] = np.nan
+    heading[rng.random(n) < 0.05] = np.inf
+    return desired, velocity, water, heading, limit
+
+
+def assert_same(batched, alone) -> None:
+    for got, want in zip(batched, alone, strict=True):
+        for field in FIELDS:
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_batch_gives_each_vessel_what_its_own_solve_gives(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    batch, alone = BuoyMpcBatch(fleet()), fleet()
+    for _ in range(30):
+        desired, velocity, water, heading, limit = random_step(rng)
+        results = batch.solve(desired, velocity, water, heading, limit)
+        expected = [mpc.solve(desired[k], velocity[k], water[k], heading[k], limit[k]) for k, mpc in enumerate(alone)]
+        assert_same(results, expected)
+    assert batch.calls == 30 and batch.unbatched == 0
+    for mine, theirs in zip(batch.controllers, alone, strict=True):
+        assert (mine.solves, mine.fallbacks) == (theirs.solves, theirs.fallbacks)
+        np.testing.assert_array_equal(mine.last_plan_world_n, theirs.last_plan_world_n)
+
+
+def test_a_failed_mapped_call_solves_that_step_vessel_by_vessel(monkeypatch) -> None:
+    rng = np.random.default_rng(11)
+    batch, alone = BuoyMpcBatch(fleet()), fleet()
+    steps = [random_step(rng) for _ in range(6)]
+
+    def fail() -> None:
+        raise _SolveError("buoy_mpc_qp: simulated failure")
+
+    for k, (desired, velocity, water, heading, limit) in enumerate(steps):
+        if k == 3:
+            monkeypatch.setattr(batch, "_qp", fail)
+        elif k == 4:
+            monkeypatch.undo()
+        results = batch.solve(desired, velocity, water, heading, limit)
+        expected = [mpc.solve(desired[i], velocity[i], water[i], heading[i], limit[i]) for i, mpc in enumerate(alone)]
+        assert_same(results, expected)
+    assert (batch.calls, batch.unbatched) == (5, 1)
+
+
+def test_only_controllers_that_can_share_a_call_are_batched() -> None:
+    assert BuoyMpcBatch.fits(fleet(2))
+    assert not BuoyMpcBatch.fits(fleet(1))
+    assert not BuoyMpcBatch.fits([BuoyMpc(time_budget_s=math.inf), BuoyMpc(time_budget_s=math.inf, horizon=8)])
+    assert not BuoyMpcBatch.fits([BuoyMpc(time_budget_s=0.02), BuoyMpc(time_budget_s=0.02)])
+    assert not BuoyMpcBatch.fits([BuoyMpc(solver="osqp", time_budget_s=math.inf) for _ in range(2)])
+    with pytest.raises(ValueError, match="one tuning"):
+        BuoyMpcBatch(fleet(1))
