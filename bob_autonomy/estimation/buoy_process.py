@@ -138,6 +138,9 @@ class _BuoyProcess(_BuoyUpdates):
         it lasts. Returns which rows had a sub-step undone (non-finite or not positive definite)."""
         p = self.params
         k = idx.size
+        if not (t_to - self.t[idx] > _TIME_EPS_S).any():  # every row already there (a reading at the filter's time)
+            self.t[idx] = np.maximum(self.t[idx], t_to)
+            return np.zeros(k, dtype=bool)
         t_now = self.t[idx].copy()
         start = t_now.copy()
         failed = np.zeros(k, dtype=bool)

@@ -3,6 +3,7 @@ the gated Joseph-form fusion that they and the drag balance share."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -24,6 +25,17 @@ from bob_autonomy.estimation.kalman_rows import CHI2_999, _healthy_rows, kalman_
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
 
+@functools.lru_cache(maxsize=64)
+def _measurement(cols: tuple[int, ...], variances: tuple[float, ...]) -> tuple[list[int], FloatArray, FloatArray]:
+    """A reading of the states `cols` with independent noise `variances`: the columns, H (k, 10) selecting them
+    and R = diag(variances) (k, k); built once per kind and noise (H and R read-only)."""
+    h_jac = np.zeros((len(cols), _NX))
+    h_jac[range(len(cols)), cols] = 1.0
+    r_cov = np.diag(variances)
+    h_jac.flags.writeable = r_cov.flags.writeable = False
+    return list(cols), h_jac, r_cov
+
+
 class _BuoyUpdates:
     """The measurement updates of BuoyEkfBank (a base of the bank, which holds the arrays declared here)."""
 
@@ -38,10 +50,11 @@ class _BuoyUpdates:
 
     def _handle_gps(self, idx: IntArray, xy: FloatArray, vel: FloatArray | None) -> IntArray:
         p = self.params
-        cols = [0, 1] if vel is None else [0, 1, 2, 3]
+        cols, h_jac, r_cov = _measurement(
+            (0, 1) if vel is None else (0, 1, 2, 3),
+            tuple(np.square([p.gps_sigma_m] * 2 + ([] if vel is None else [p.gps_velocity_sigma_mps] * 2))),
+        )
         z = xy if vel is None else np.concatenate((xy, vel), axis=1)
-        sig = [p.gps_sigma_m] * 2 + ([] if vel is None else [p.gps_velocity_sigma_mps] * 2)
-        r_cov = np.diag(np.square(sig))
         codes = np.full(idx.size, _INIT)
         first = ~self.pos_init[idx]
         if first.any():  # the first fix initialises position (and velocity), however far from the prior
@@ -50,8 +63,6 @@ class _BuoyUpdates:
         rows = np.flatnonzero(~first)
         if rows.size:
             agents = idx[rows]
-            h_jac = np.zeros((len(cols), _NX))
-            h_jac[range(len(cols)), cols] = 1.0
             codes[rows] = self._fuse(agents, _GPS, z[rows], self.x[agents][:, cols], h_jac, r_cov, False, cols)
         return codes
 
@@ -65,9 +76,7 @@ class _BuoyUpdates:
         rows = np.flatnonzero(~first)
         if rows.size:
             agents = idx[rows]
-            h_jac = np.zeros((1, _NX))
-            h_jac[0, 4] = 1.0
-            r_cov = np.array([[p.compass_sigma_rad**2]])
+            _, h_jac, r_cov = _measurement((4,), (p.compass_sigma_rad**2,))
             z = heading[rows][:, None]
             codes[rows] = self._fuse(agents, _COMPASS, z, self.x[agents, 4:5], h_jac, r_cov, True, [4])
             self.x[agents, 4] = wrap_angle(self.x[agents, 4])
@@ -75,10 +84,7 @@ class _BuoyUpdates:
 
     def _handle_gyro(self, idx: IntArray, yaw_rate_radps: FloatArray) -> IntArray:
         """Gyro yaw rates, fused into the yaw-rate state."""
-        p = self.params
-        h_jac = np.zeros((1, _NX))
-        h_jac[0, 5] = 1.0
-        r_cov = np.array([[p.gyro_sigma_radps**2]])
+        _, h_jac, r_cov = _measurement((5,), (self.params.gyro_sigma_radps**2,))
         return self._fuse(idx, _GYRO, yaw_rate_radps[:, None], self.x[idx, 5:6], h_jac, r_cov, False, [5])
 
     def _initial_heading(self, idx: IntArray, heading: FloatArray) -> None:

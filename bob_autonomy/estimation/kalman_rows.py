@@ -3,6 +3,8 @@ gate's chi-square quantiles and angle wrapping."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -44,7 +46,7 @@ def kalman_update_rows(
     d2 = (y[:, None, :] @ s_inv @ y[:, :, None])[:, 0, 0]
     gain = pht @ s_inv
     x_new = x + (gain @ y[:, :, None])[:, :, 0]
-    i_kh = np.eye(x.shape[1]) - gain @ h_jac
+    i_kh = _identity(x.shape[1]) - gain @ h_jac
     p_new = i_kh @ p_cov @ _transpose(i_kh) + gain @ r_cov @ _transpose(gain)
     p_new = 0.5 * (p_new + _transpose(p_new))
     if ok.all():
@@ -63,8 +65,9 @@ def _spd_inverse(s_cov: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
         a, b, c, d = s_cov[:, 0, 0], s_cov[:, 0, 1], s_cov[:, 1, 0], s_cov[:, 1, 1]
         det = a * d - b * c
         ok = (a > 0.0) & (det > 0.0)
-        a, b, c, d = (np.where(ok, v, w) for v, w in ((a, 1.0), (b, 0.0), (c, 0.0), (d, 1.0)))
-        det = np.where(ok, det, 1.0)
+        if not ok.all():  # (every row positive definite: nothing to replace)
+            a, b, c, d = (np.where(ok, v, w) for v, w in ((a, 1.0), (b, 0.0), (c, 0.0), (d, 1.0)))
+            det = np.where(ok, det, 1.0)
         inv = np.empty_like(s_cov)
         inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 0], inv[:, 1, 1] = d / det, -b / det, -c / det, a / det
         return inv, ok
@@ -72,6 +75,14 @@ def _spd_inverse(s_cov: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
     if not ok.all():
         s_cov = np.where(ok[:, None, None], s_cov, np.eye(k))
     return np.linalg.inv(s_cov), ok
+
+
+@functools.cache
+def _identity(n: int) -> FloatArray:
+    """The n x n identity (shared, never written to)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
 
 
 def _healthy_rows(x: FloatArray, p_cov: FloatArray) -> NDArray[np.bool_]:
