@@ -1,6 +1,6 @@
 """The casadi QP plumbing the MPCs share (bob_autonomy.control.mpc, bob_autonomy.control.motorboat_control): the
-conic plugins and their options, a Function called through preallocated buffers, and the solve errors with the
-CPU-time budget check."""
+conic plugins and their options, a Function called through preallocated buffers, the solve errors with the
+CPU-time budget check, and the inputs made finite (a non-finite entry counts as 0 or a default)."""
 
 from __future__ import annotations
 
@@ -112,5 +112,6 @@ def _vector2(value: object) -> FloatArray:
 
 
 def _finite_float(value: object, default: float) -> float:
+    """value as a float, or default when it is not finite."""
     number = float(value)  # type: ignore[arg-type]
     return number if math.isfinite(number) else default
