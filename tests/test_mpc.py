@@ -255,26 +255,34 @@ def _buoy_inputs(seed: int, steps: int = 40) -> list[tuple]:
     ]
 
 
+def assert_shared_but_independent(make, first: list[tuple], second: list[tuple], command) -> None:
+    """Two controllers from `make()` share their casadi Functions, yet solving `first` and `second` in turn
+    gives exactly the commands (`command(result)`) that each sequence gives a controller of its own."""
+    alone = []
+    for inputs in (first, second):
+        mpc = make()
+        alone.append([command(mpc.solve(*args)) for args in inputs])
+    a, b = make(), make()
+    assert a._qp.function is b._qp.function and a._data.function is b._data.function
+    together: tuple[list, list] = ([], [])
+    for args_a, args_b in zip(first, second, strict=True):
+        together[0].append(command(a.solve(*args_a)))
+        together[1].append(command(b.solve(*args_b)))
+    for mine, by_itself in zip(together, alone, strict=True):
+        np.testing.assert_array_equal(np.array(mine), np.array(by_itself))
+
+
 @pytest.mark.parametrize("solver", [s for s in ("daqp", "osqp") if ca.has_conic(s)])
 def test_controllers_of_one_tuning_share_the_solver_but_not_its_state(solver: str) -> None:
     """A fleet builds the QP once (the casadi Functions are shared); each controller keeps its own buffers, so
     two controllers solving in turn give exactly what each gives alone (OSQP's warm start lives there too)."""
 
-    def commands(mpc: BuoyMpc, inputs: list[tuple]) -> list[np.ndarray]:
-        return [mpc.solve(*args).thrust_world_n for args in inputs]
+    def make() -> BuoyMpc:
+        return BuoyMpc(solver=solver, time_budget_s=RELAXED_BUDGET_S)
 
-    first, second = _buoy_inputs(1), _buoy_inputs(2)
-    alone = [commands(BuoyMpc(solver=solver, time_budget_s=RELAXED_BUDGET_S), inputs) for inputs in (first, second)]
-    a, b = (BuoyMpc(solver=solver, time_budget_s=RELAXED_BUDGET_S) for _ in range(2))
-    assert a._qp.function is b._qp.function and a._data.function is b._data.function
-    interleaved: tuple[list, list] = ([], [])
-    for args_a, args_b in zip(first, second, strict=True):
-        interleaved[0].append(a.solve(*args_a).thrust_world_n)
-        interleaved[1].append(b.solve(*args_b).thrust_world_n)
-    for together, by_itself in zip(interleaved, alone, strict=True):
-        np.testing.assert_array_equal(np.array(together), np.array(by_itself))
+    assert_shared_but_independent(make, _buoy_inputs(1), _buoy_inputs(2), lambda r: r.thrust_world_n)
     other = BuoyMpc(solver=solver, horizon=8, time_budget_s=RELAXED_BUDGET_S)
-    assert other._qp.function is not a._qp.function
+    assert other._qp.function is not make()._qp.function
 
 
 # ---------------------------------------------------------------- eBot
@@ -386,16 +394,7 @@ def test_ebot_controllers_of_one_tuning_share_the_solver_but_not_its_state() -> 
         rng = np.random.default_rng(seed)
         return [(rng.uniform(-0.3, 0.3, 2), rng.uniform(-3, 3)) for _ in range(40)]
 
-    first, second = inputs(5), inputs(6)
-    alone = []
-    for seq in (first, second):
-        mpc = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
-        alone.append([mpc.solve(*args).wheels_mps for args in seq])
-    a, b = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S), DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
-    assert a._qp.function is b._qp.function
-    together: tuple[list, list] = ([], [])
-    for args_a, args_b in zip(first, second, strict=True):
-        together[0].append(a.solve(*args_a).wheels_mps)
-        together[1].append(b.solve(*args_b).wheels_mps)
-    for mine, by_itself in zip(together, alone, strict=True):
-        np.testing.assert_array_equal(np.array(mine), np.array(by_itself))
+    def make() -> DiffDriveMpc:
+        return DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
+
+    assert_shared_but_independent(make, inputs(5), inputs(6), lambda r: r.wheels_mps)
