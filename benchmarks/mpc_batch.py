@@ -7,8 +7,8 @@ thrust limit 20-45 N). Timed per step of 45 solves (median over the steps, ms):
 
     solve        BuoyMpc.solve() per vessel, as BuoyPipeline.thrust calls it: Python around each solve
                  (inputs checked, polygon, warm start, limits, result) and the two casadi calls
-    calls        the QP-data Function and the DAQP conic called per vessel through their buffers, nothing
-                 else: the floor of the per-vessel path
+    calls        BuoyMpc._solve_qp per vessel: its buffers filled and the QP-data Function and the DAQP conic
+                 called, without the rest of solve()
     map_serial   the data Function and the conic mapped over the 45 vessels (Function.map, "serial"): one
                  call each per step
     map_thread   the same with casadi's "thread" map over 2 threads
