@@ -418,9 +418,10 @@ class MotorboatMpc:
         self._bar = np.zeros(self.horizon)  # the linearisation point: the plan's speed through the water per step
         # The QP is formulated and its casadi Functions built once per boat model and tuning (cached: a fleet of
         # identical boats shares them); each controller has its own buffers.
-        self.problem, data, conic, constraint_values, self._speeds = _qp_functions(
+        self.problem, data, conic, constraint_values, speeds = _qp_functions(
             model, self.step_s, self.horizon, self.weights, self.solver
         )
+        self._speeds = _BufferedCall(speeds)  # the plan's speeds, the next linearisation point (no DM per call)
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         self._qp.inputs["a"][:] = constraint_values
@@ -501,7 +502,11 @@ class MotorboatMpc:
             _cpu_over_budget(time.thread_time() - cpu, self.time_budget_s)
             fraction, steering = float(plan[0, 0]), float(plan[0, 1])
             self.last_plan = plan
-            self._bar[:] = np.asarray(self._speeds(plan[:, 0], u0), dtype=float).ravel()
+            speeds = self._speeds
+            speeds.inputs["i0"][:] = plan[:, 0]
+            speeds.inputs["i1"][0] = u0
+            speeds()
+            self._bar[:] = speeds.outputs["o0"]
         except Exception as error_:  # any failure of the solve: the boat still gets a command
             elapsed = time.perf_counter() - start
             ok, fallback = False, True
