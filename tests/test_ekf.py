@@ -28,7 +28,6 @@ from bob_autonomy.estimation import (
     BuoyEkfBank,
     BuoyEkfParams,
     EbotEkf,
-    EbotEkfBank,
     EbotEkfParams,
     kalman_predict_rows,
     kalman_update_rows,
@@ -584,31 +583,3 @@ def test_buoy_bank_gives_the_single_filters_results() -> None:
     bank.update_gps(np.array([0]), np.array([math.nan]), np.array([[0.0, 0.0]]))
     assert bank.rejected == 1
     assert bank.late == sum(f.late for f in singles) == 2  # the first fixes (t = -0.01) predate the filters' clock
-
-
-def test_ebot_bank_gives_the_single_filters_results() -> None:
-    times, ticks, _ = square_ticks()
-    rng = np.random.default_rng(14)
-    start = np.array([[0.0, 0.0], [1.0, 1.0]])
-    heading0 = np.array([0.0, 0.3])
-    bank = EbotEkfBank(start, heading0, WHEEL_BASE_M, METRES_PER_TICK)
-    singles = [EbotEkf(start[i], heading0[i], WHEEL_BASE_M, METRES_PER_TICK) for i in range(2)]
-    agents = np.arange(2)
-    for t, k in zip(times, ticks, strict=True):
-        both = np.stack([k, k + 3])
-        compass = rng.uniform(-0.1, 0.1, 2)
-        bank.update_encoders(agents, np.full(2, t), both)
-        bank.update_compass(agents, compass, np.full(2, t))
-        for i in range(2):
-            singles[i].update_encoders(t, both[i])
-            singles[i].update_compass(t, compass[i])
-    bank.update_position(np.array([1]), np.array([times[-1]]), np.array([[1.0, 1.1]]), np.array([0.2]))
-    singles[1].update_position(times[-1], [1.0, 1.1], 0.2)
-    est = bank.estimate(times[-1])
-    for i, f in enumerate(singles):
-        pos, vel, head = f.estimate()
-        np.testing.assert_array_equal(est.position[i], pos)
-        np.testing.assert_array_equal(est.velocity[i], vel)
-        assert est.heading[i] == head
-        assert bank.covariance_trace()[i] == f.position_covariance_trace()
-    assert bank.gated == sum(f.gated for f in singles)

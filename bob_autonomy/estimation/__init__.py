@@ -7,8 +7,10 @@ simulated fleet's. Its filter equations are those of filterpy's
 `ExtendedKalmanFilter` (predict P = F P F^T + Q; update in Joseph form) written
 over a stack of filters (`kalman_predict_rows`, `kalman_update_rows`;
 tests/test_ekf.py checks them against filterpy row by row). The eBot filter
-(`EbotEkf`) is one filterpy `ExtendedKalmanFilter` per robot, `EbotEkfBank`
-holds N of them. Both banks have the batch API of
+runs as a bank too: `EbotEkfBank` (rows = robots, the same row equations); its
+reference is `EbotEkf`, one filterpy `ExtendedKalmanFilter` per robot, which
+tests/test_ebot_ekf_bank.py holds the bank to reading by reading.
+Both banks have the batch API of
 `bob_autonomy.estimation.simple_estimator` (update_gps, update_compass, update_encoders,
 estimate -> PoseEstimate), which they replace. Frames: x east, y north (m);
 headings in rad from east, counter-clockwise, wrapped to (-pi, pi]; the body
@@ -99,8 +101,8 @@ Measurement models (z = h(s) + noise):
     (it cannot be rotated into the world).
   * gyro (`update_gyro`): yaw rate, sigma `gyro_sigma_radps` (0.006 rad/s).
 
-eBot (`EbotEkf`)
-----------------
+eBot (`EbotEkfBank`, `EbotEkf`)
+-------------------------------
 State [x, y, heading]. Prediction from wheel-encoder odometry: the cumulative
 ticks give wheel travels dl, dr since the last reading; ds = (dl + dr) / 2,
 dheading = (dr - dl) / wheel_base (or gyro_z * dt when a gyro reading comes
@@ -143,18 +145,23 @@ Modules
 * `kalman_rows`: filterpy's EKF predict and Joseph update over a stack of filters, the gate quantiles, wrap_angle.
 * `timed_ekf`: the filterpy-based filter machinery (gate, updates, replay log) under `EbotEkf`; filterpy is
   imported on first use, so importing this package does not import it.
-* `buoy_params`: `BuoyEkfParams`, the buoy state layout, kinds of reading and `OUTCOMES`.
-* `buoy_ekf_bank`: `BuoyEkfBank`, its code spread over three bases: `buoy_updates` (GPS, compass, gyro and the
-  gated fusion), `buoy_process` (nozzle slew, prediction, drag balance) and `buoy_replay` (time, log, replay).
-* `buoy_ekf`: `BuoyEkf`, a bank of one. `ebot_ekf`: `EbotEkfParams`, `EbotEkf`, `EbotEkfBank`.
+* `row_replay`: the banks' time, log, replay and outcome counters, and `OUTCOMES`. `row_fusion`: the banks' gated
+  Joseph-form fusion and reset.
+* `buoy_params`: `BuoyEkfParams`, the buoy state layout and kinds of reading.
+* `buoy_ekf_bank`: `BuoyEkfBank`, its code spread over bases: `buoy_updates` (GPS, compass, gyro), `buoy_process`
+  (nozzle slew, prediction, drag balance), `row_fusion` and `row_replay`.
+* `buoy_ekf`: `BuoyEkf`, a bank of one. `ebot_ekf`: `EbotEkfParams`, `EbotEkf` (filterpy, the reference).
+  `ebot_ekf_bank`: `EbotEkfBank`.
 The package exports the public names.
 """
 
 from bob_autonomy.estimation.buoy_ekf import BuoyEkf
 from bob_autonomy.estimation.buoy_ekf_bank import BuoyEkfBank
-from bob_autonomy.estimation.buoy_params import OUTCOMES, BuoyEkfParams
-from bob_autonomy.estimation.ebot_ekf import EbotEkf, EbotEkfBank, EbotEkfParams
+from bob_autonomy.estimation.buoy_params import BuoyEkfParams
+from bob_autonomy.estimation.ebot_ekf import EbotEkf, EbotEkfParams
+from bob_autonomy.estimation.ebot_ekf_bank import EbotEkfBank
 from bob_autonomy.estimation.kalman_rows import CHI2_999, kalman_predict_rows, kalman_update_rows, wrap_angle
+from bob_autonomy.estimation.row_replay import OUTCOMES
 
 __all__ = [
     "CHI2_999",

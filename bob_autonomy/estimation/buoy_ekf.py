@@ -8,7 +8,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bob_autonomy.estimation.buoy_ekf_bank import BuoyEkfBank
-from bob_autonomy.estimation.buoy_params import OUTCOMES, BuoyEkfParams
+from bob_autonomy.estimation.buoy_params import BuoyEkfParams
+from bob_autonomy.estimation.row_replay import OUTCOMES
 from bob_autonomy.estimation.simple_estimator import FloatArray
 
 

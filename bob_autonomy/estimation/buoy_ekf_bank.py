@@ -5,26 +5,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bob_autonomy.estimation.buoy_params import (
-    _COMPASS,
-    _GPS,
-    _GYRO,
-    _IGNORED,
-    _INIT,
-    _LATE,
-    _NX,
-    _PREDICT,
-    _REJECTED,
-    OUTCOMES,
-    BuoyEkfParams,
-)
+from bob_autonomy.estimation.buoy_params import _COMPASS, _FIELDS, _GPS, _GYRO, _NX, _PREDICT, BuoyEkfParams
 from bob_autonomy.estimation.buoy_process import _BuoyProcess
-from bob_autonomy.estimation.buoy_replay import _BuoyReplay, _scalars, _vectors
 from bob_autonomy.estimation.kalman_rows import wrap_angle
+from bob_autonomy.estimation.row_replay import _IGNORED, _INIT, _REJECTED, _RowReplay, _scalars, _vectors
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
 
 
-class BuoyEkfBank(_BuoyReplay, _BuoyProcess):
+class BuoyEkfBank(_RowReplay, _BuoyProcess):
     """N buoy EKFs held in arrays, rows = agents, behind the batch API of AlphaBetaBuoyEstimator.
 
     n: number of buoys; position_m (n, 2), heading_rad (n,): initial poses if known (else the first GPS fix and
@@ -32,8 +20,8 @@ class BuoyEkfBank(_BuoyReplay, _BuoyProcess):
     bob_autonomy.estimation); a call handles all its rows at once with numpy (an agent given twice in one call is
     handled row by row, in order).
 
-    Its code is spread over bases by concern: _BuoyUpdates (measurement updates), _BuoyProcess (prediction,
-    drag balance) and _BuoyReplay (time, log and replay).
+    Its code is spread over bases by concern: _BuoyUpdates (measurement updates, on row_fusion's gated fusion),
+    _BuoyProcess (prediction, drag balance) and row_replay's _RowReplay (time, log, replay and outcome counters).
 
     Arrays (row i = agent i): x (n, 10) states, P (n, 10, 10) covariances, t (n,) filter times (NaN before the
     first reading), pos_init / heading_init (n,) whether position / heading were set.
@@ -64,12 +52,7 @@ class BuoyEkfBank(_BuoyReplay, _BuoyProcess):
         self.t_nozzle = np.full(n, np.nan)
         self.gate_run = np.zeros((n, 4), dtype=np.int64)  # consecutive gated readings of each kind
         self._template_cache: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
-        self._rejected = np.zeros(n, dtype=np.int64)
-        self._late = np.zeros(n, dtype=np.int64)
-        self._pruned = np.zeros((n, len(OUTCOMES)), dtype=np.int64)  # outcomes of entries gone from the logs
-        # Replay logs, one per agent: entries [t, call, row in call, snapshot block, row in block, outcome].
-        self._logs: list[list[list]] = [[] for _ in range(n)]
-        self._times: list[list[float]] = [[] for _ in range(n)]
+        self._init_replay(n, _FIELDS)
         everyone = np.arange(n)
         if position_m is not None:
             pos = np.asarray(position_m, dtype=float).reshape(n, 2)
@@ -171,45 +154,10 @@ class BuoyEkfBank(_BuoyReplay, _BuoyProcess):
         """(N,) trace of each agent's position covariance, m^2."""
         return self.P[:, 0, 0] + self.P[:, 1, 1]
 
-    def outcome_counts(self, outcome: str) -> NDArray[np.int64]:
-        """(N,) how many readings of each agent had this outcome (one of OUTCOMES), replays accounted for."""
-        code = OUTCOMES.index(outcome)
-        if code == _REJECTED:
-            return self._rejected.copy()
-        if code == _LATE:
-            return self._late.copy()
-        live = np.array([sum(e[5] == code for e in log) for log in self._logs], dtype=np.int64)
-        return self._pruned[:, code] + live
-
-    @property
-    def rejected(self) -> int:
-        """Non-finite readings (never fused)."""
-        return int(self._rejected.sum())
-
-    @property
-    def late(self) -> int:
-        """Readings older than the replay window."""
-        return int(self._late.sum())
-
-    @property
-    def gated(self) -> int:
-        """Sensor readings rejected by the innovation gate."""
-        return int(self.outcome_counts("gated").sum())
-
-    @property
-    def resets(self) -> int:
-        """Re-initialisations after gate_reset_count consecutive gated readings of one sensor."""
-        return int(self.outcome_counts("reset").sum())
-
     @property
     def model_gated(self) -> int:
         """Drag-balance pseudo-measurements rejected by the gate."""
         return int(self.outcome_counts("model_gated").sum())
-
-    @property
-    def failures(self) -> int:
-        """Steps undone because they would have left a non-finite or non-positive-definite state."""
-        return int(self.outcome_counts("failed").sum())
 
     # ------------------------------------------------------------ readings, in time order
 

@@ -1,4 +1,4 @@
-"""The buoy filter's tuning (BuoyEkfParams), state layout, kinds of reading and outcome codes."""
+"""The buoy filter's tuning (BuoyEkfParams), state layout and kinds of reading."""
 
 from __future__ import annotations
 
@@ -8,18 +8,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bob_autonomy.control.velocity_control import BuoyModel
+from bob_autonomy.estimation.row_replay import (
+    _FUSED,
+    _GATED,
+    _MODEL_GATED,
+    _MODEL_RESET,
+    _PREDICTED,
+    _RESET,
+    OUTCOMES,
+)
 
 _NX = 10  # [x, y, vx, vy, heading, yaw_rate, drift_x, drift_y, bias_x, bias_y]
 _EYE2 = np.eye(2)
 _EYE_NX = np.eye(_NX)
 
-# What came of a reading: the names BuoyEkf's methods return; the codes are what the bank logs.
-OUTCOMES = (
-    "predicted", "fused", "init", "gated", "reset", "model_gated", "model_reset", "failed", "rejected", "late",
-    "ignored",
-)  # fmt: skip
-(_PREDICTED, _FUSED, _INIT, _GATED, _RESET, _MODEL_GATED, _MODEL_RESET, _FAILED, _REJECTED, _LATE,
- _IGNORED) = range(len(OUTCOMES))  # fmt: skip
 # The outcome of a prediction whose drag balance had this outcome.
 _AS_MODEL_OUTCOME = np.arange(len(OUTCOMES))
 _AS_MODEL_OUTCOME[[_FUSED, _GATED, _RESET]] = _PREDICTED, _MODEL_GATED, _MODEL_RESET

@@ -7,18 +7,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bob_autonomy.control.velocity_control import BuoyModel
-from bob_autonomy.estimation.buoy_params import (
-    _AS_MODEL_OUTCOME,
-    _DRAG,
-    _EYE2,
-    _EYE_NX,
-    _FAILED,
-    _NX,
-    _PREDICTED,
-    BuoyEkfParams,
-)
+from bob_autonomy.estimation.buoy_params import _AS_MODEL_OUTCOME, _DRAG, _EYE2, _EYE_NX, _NX, BuoyEkfParams
 from bob_autonomy.estimation.buoy_updates import _BuoyUpdates
 from bob_autonomy.estimation.kalman_rows import _healthy_rows, _transpose, kalman_predict_rows, wrap_angle
+from bob_autonomy.estimation.row_replay import _FAILED, _PREDICTED
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
 _TIME_EPS_S = 1e-12

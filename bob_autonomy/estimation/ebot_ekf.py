@@ -1,5 +1,5 @@
-"""The eBot's EKF ([x, y, heading] from wheel odometry, compass and position fixes) and a bank of them behind
-the batch estimator API."""
+"""The eBot's EKF ([x, y, heading] from wheel odometry, compass and position fixes) on filterpy, one robot per
+filter: the reference that EbotEkfBank (the fleet's and the vessel's filter, in arrays) is held to."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bob_autonomy.estimation.kalman_rows import wrap_angle
-from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
+from bob_autonomy.estimation.simple_estimator import FloatArray
 from bob_autonomy.estimation.timed_ekf import _finite, _TimedEkf
 
 
@@ -161,91 +161,3 @@ class EbotEkf(_TimedEkf):
         if dt > 0.0:
             self._velocity = np.array([c, s]) * ds / dt
         return "predicted" if ok else "failed"
-
-
-# =========================================================================== banks
-
-
-def _rows(agents: IntArray, *arrays: ArrayLike | None) -> list:
-    """Per-row values of batch arrays: each broadcast to len(agents) rows (None stays None)."""
-    k = len(agents)
-    out = []
-    for a in arrays:
-        if a is None:
-            out.append([None] * k)
-        else:
-            arr = np.asarray(a, dtype=float)
-            out.append(list(np.broadcast_to(arr, (k, *arr.shape[1:])) if arr.ndim else np.full(k, float(arr))))
-    return out
-
-
-class _Bank:
-    filters: list
-
-    @property
-    def rejected(self) -> int:
-        return sum(f.rejected for f in self.filters)
-
-    @property
-    def late(self) -> int:
-        return sum(f.late for f in self.filters)
-
-    @property
-    def gated(self) -> int:
-        return sum(f.gated for f in self.filters)
-
-    @property
-    def resets(self) -> int:
-        return sum(f.resets for f in self.filters)
-
-    def covariance_trace(self) -> FloatArray:
-        """(N,) trace of each agent's position covariance, m^2."""
-        return np.array([f.position_covariance_trace() for f in self.filters])
-
-    def estimate(self, t_s: float) -> PoseEstimate:
-        """Poses of the N agents (position extrapolated to t_s for buoys); never NaN."""
-        rows = [f.estimate(t_s) for f in self.filters]
-        n = len(rows)
-        return PoseEstimate(
-            np.array([r[0] for r in rows]).reshape(n, 2),
-            np.array([r[1] for r in rows]).reshape(n, 2),
-            np.array([r[2] for r in rows], dtype=float).reshape(n),
-        )
-
-
-class EbotEkfBank(_Bank):
-    """N independent EbotEkf behind the batch API of OdometryEstimator."""
-
-    def __init__(
-        self,
-        position_m: FloatArray,
-        heading_rad: FloatArray,
-        wheel_base_m: float,
-        metres_per_tick: float,
-        params: EbotEkfParams | None = None,
-    ) -> None:
-        pos = np.asarray(position_m, dtype=float).reshape(-1, 2)
-        head = np.broadcast_to(np.asarray(heading_rad, dtype=float), (pos.shape[0],))
-        self.filters = [
-            EbotEkf(pos[i], float(head[i]), wheel_base_m, metres_per_tick, params) for i in range(pos.shape[0])
-        ]
-
-    def update_encoders(
-        self,
-        agents: IntArray,
-        t_s: ArrayLike,
-        ticks: NDArray[np.int64],
-        gyro_z_radps: FloatArray | None = None,
-    ) -> None:
-        ticks = np.asarray(ticks).reshape(len(agents), 2)
-        (times, gyros) = _rows(agents, t_s, gyro_z_radps)
-        for i, t, k, g in zip(agents, times, ticks, gyros, strict=True):
-            self.filters[i].update_encoders(t, k, g)
-
-    def update_compass(self, agents: IntArray, heading_rad: FloatArray, t_s: ArrayLike | None = None) -> None:
-        for i, h, t in zip(agents, *_rows(agents, heading_rad, t_s), strict=True):
-            self.filters[i].update_compass(t, h)
-
-    def update_position(self, agents: IntArray, t_s: ArrayLike, xy_m: FloatArray, sigma_m: ArrayLike) -> None:
-        for i, t, xy, s in zip(agents, *_rows(agents, t_s, xy_m, sigma_m), strict=True):
-            self.filters[i].update_position(t, xy, s)

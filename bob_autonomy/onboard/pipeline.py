@@ -266,10 +266,8 @@ class EbotPipeline:
             if dt > 0 and t - self.last_odometry_t[i] > ODOMETRY_SILENT_S:
                 seen = (xy[row] - self.last_fix_xy[i]) / dt
                 self.fix_velocity[i] += FIX_VELOCITY_GAIN * (seen - self.fix_velocity[i])
-                f = self.estimator.filters[i]
-                f.kf.x[0:2, 0] += self.fix_velocity[i] * dt
-                f.kf.P[0:2, 0:2] += np.eye(2) * (0.5 * self.max_wheel_speed_mps * dt) ** 2
-                f._velocity = self.fix_velocity[i].copy()
+                growth = (0.5 * self.max_wheel_speed_mps * dt) ** 2
+                self.estimator.carry(i, self.fix_velocity[i] * dt, growth, self.fix_velocity[i])
             if dt >= 0:
                 self.last_fix_t[i], self.last_fix_xy[i] = t, xy[row]
 

@@ -1,15 +1,28 @@
-"""The buoy bank's time handling: each call's readings handled in order, or by stored-state replay when late,
-with the per-agent logs that replay needs; and the shaping of batch arguments."""
+"""Time handling of a bank of EKFs held as rows (the buoy's and the eBot's): each call's readings handled in
+order, or by stored-state replay when late, with the per-agent logs that replay needs; the outcome codes and
+their counters; the shaping of batch arguments."""
 
 from __future__ import annotations
 
 import bisect
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bob_autonomy.estimation.buoy_params import _FIELDS, _LATE, _REJECTED, BuoyEkfParams
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
+
+# What came of a reading: the names the single filters' methods return; the codes are what a bank logs.
+OUTCOMES = (
+    "predicted", "fused", "init", "gated", "reset", "model_gated", "model_reset", "failed", "rejected", "late",
+    "ignored",
+)  # fmt: skip
+(_PREDICTED, _FUSED, _INIT, _GATED, _RESET, _MODEL_GATED, _MODEL_RESET, _FAILED, _REJECTED, _LATE,
+ _IGNORED) = range(len(OUTCOMES))  # fmt: skip
+
+
+class _ReplayParams(Protocol):
+    replay_window_s: float
 
 
 def _vectors(values: ArrayLike | None, k: int) -> FloatArray | None:
@@ -31,17 +44,28 @@ def _take(data: tuple, rows: ArrayLike) -> tuple:
     return tuple(None if values is None else values[rows] for values in data)
 
 
-class _BuoyReplay:
-    """Time, log and replay of BuoyEkfBank (a base of the bank, which holds the arrays declared here and handles
-    the readings in _handle)."""
+class _RowReplay:
+    """Time, log and replay of a bank of filters held as rows (a base of the bank, which holds the arrays declared
+    here, names in _fields the per-agent arrays a replay snapshot holds, and handles the readings in _handle)."""
 
-    params: BuoyEkfParams
+    _fields: tuple[str, ...]
+    params: _ReplayParams
     t: FloatArray
     _rejected: NDArray[np.int64]
     _late: NDArray[np.int64]
     _pruned: NDArray[np.int64]
     _logs: list[list[list]]
     _times: list[list[float]]
+
+    def _init_replay(self, n: int, fields: tuple[str, ...]) -> None:
+        """Empty logs and counters for n agents; fields: the names of the per-agent arrays a snapshot holds."""
+        self._fields = fields
+        self._rejected = np.zeros(n, dtype=np.int64)
+        self._late = np.zeros(n, dtype=np.int64)
+        self._pruned = np.zeros((n, len(OUTCOMES)), dtype=np.int64)  # outcomes of entries gone from the logs
+        # Replay logs, one per agent: entries [t, call, row in call, snapshot block, row in block, outcome].
+        self._logs: list[list[list]] = [[] for _ in range(n)]
+        self._times: list[list[float]] = [[] for _ in range(n)]
 
     @staticmethod
     def _batch(agents: ArrayLike, t_s: ArrayLike) -> tuple[IntArray, FloatArray]:
@@ -148,11 +172,48 @@ class _BuoyReplay:
         return codes
 
     def _snapshot(self, idx: IntArray) -> tuple:
-        return tuple(getattr(self, name)[idx] for name in _FIELDS)  # fancy indexing copies
+        return tuple(getattr(self, name)[idx] for name in self._fields)  # fancy indexing copies
 
     def _restore(self, idx: IntArray, block: tuple, rows: IntArray) -> None:
-        for name, values in zip(_FIELDS, block, strict=True):
+        for name, values in zip(self._fields, block, strict=True):
             getattr(self, name)[idx] = values[rows]
 
     def _handle(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
         raise NotImplementedError
+
+    # ------------------------------------------------------------ counters
+
+    def outcome_counts(self, outcome: str) -> NDArray[np.int64]:
+        """(N,) how many readings of each agent had this outcome (one of OUTCOMES), replays accounted for."""
+        code = OUTCOMES.index(outcome)
+        if code == _REJECTED:
+            return self._rejected.copy()
+        if code == _LATE:
+            return self._late.copy()
+        live = np.array([sum(e[5] == code for e in log) for log in self._logs], dtype=np.int64)
+        return self._pruned[:, code] + live
+
+    @property
+    def rejected(self) -> int:
+        """Non-finite readings (never fused)."""
+        return int(self._rejected.sum())
+
+    @property
+    def late(self) -> int:
+        """Readings older than the replay window."""
+        return int(self._late.sum())
+
+    @property
+    def gated(self) -> int:
+        """Sensor readings rejected by the innovation gate."""
+        return int(self.outcome_counts("gated").sum())
+
+    @property
+    def resets(self) -> int:
+        """Re-initialisations after gate_reset_count consecutive gated readings of one sensor."""
+        return int(self.outcome_counts("reset").sum())
+
+    @property
+    def failures(self) -> int:
+        """Steps undone because they would have left a non-finite or non-positive-definite state."""
+        return int(self.outcome_counts("failed").sum())
