@@ -43,9 +43,23 @@ def _check_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
 
 
 def _flatten(readings: SensorReadings | Iterable[object]) -> list[object]:
+    """The readings of a batch in order of measurement time (stable: readings of one time keep their order).
+
+    The EKFs fuse a reading older than their clock by replaying everything after it, which gives the in-order
+    result at the cost of a re-run; a GPS fix that comes with the IMU reading of a later time (its latency) is
+    therefore fused first, and nothing needs replaying."""
     if isinstance(readings, SensorReadings):
-        return [r for r in (readings.imu, readings.gps, readings.compass, readings.encoders) if r is not None]
-    return list(readings)
+        batch = [r for r in (readings.imu, readings.gps, readings.compass, readings.encoders) if r is not None]
+    else:
+        batch = list(readings)
+    return sorted(batch, key=_latest_time) if len(batch) > 1 else batch
+
+
+def _latest_time(reading: object) -> float:
+    """The latest finite measurement time of a reading's rows, s (-inf without one: it goes first)."""
+    times = np.asarray(getattr(reading, "t_s", -np.inf), dtype=float)
+    finite = times[np.isfinite(times)]
+    return float(finite.max()) if finite.size else -np.inf
 
 
 class BuoyPipeline:
