@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from bob_autonomy.control.ebot_mpc import DiffDriveMpc
+from bob_autonomy.control.ebot_mpc import DiffDriveMpc, _clipped
 from bob_autonomy.control.mpc import BuoyMpc, polygon_normals
 from bob_autonomy.control.velocity_control import BuoyModel
 
@@ -398,3 +398,11 @@ def test_ebot_controllers_of_one_tuning_share_the_solver_but_not_its_state() -> 
         return DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
 
     assert_shared_but_independent(make, inputs(5), inputs(6), lambda r: r.wheels_mps)
+
+
+def test_ebot_wheel_clipping_is_numpys_clip_of_nan_to_num() -> None:
+    rng = np.random.default_rng(3)
+    specials = [math.nan, math.inf, -math.inf, 0.0, -0.0, 0.2, -0.2, 1e308]
+    values = [[a, b] for a in specials for b in specials] + rng.normal(0.0, 0.3, (200, 2)).tolist()
+    for w in values:
+        np.testing.assert_array_equal(_clipped(np.array(w), 0.2), np.clip(np.nan_to_num(np.array(w)), -0.2, 0.2))

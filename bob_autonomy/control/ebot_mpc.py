@@ -25,7 +25,7 @@ from bob_autonomy.control.qp import (
     default_qp_plugin,
 )
 from bob_autonomy.control.velocity_control import DiffDriveController
-from bob_autonomy.core.arrays import FloatArray
+from bob_autonomy.core.arrays import FloatArray, finite_pair
 
 logger = logging.getLogger("bob_autonomy.control.mpc")  # the MPCs' one logger (fallbacks are logged there)
 
@@ -258,14 +258,14 @@ class DiffDriveMpc:
         heading = _finite_float(heading_rad, 0.0)
         vmax = self.max_wheel_speed_mps
         previous = self._last_wheels if previous_wheels_mps is None else _vector2(previous_wheels_mps)
-        previous = np.clip(previous, -vmax, vmax)
+        previous = _clipped(previous, vmax)
         self.solves += 1
         ok, used_fallback, status = True, False, "optimal"
         start, cpu = time.perf_counter(), time.thread_time()
         try:
             plan = self._solve_plan(self._parameters(desired, heading, previous, forward_only), forward_only)
             elapsed = time.perf_counter() - start
-            if not np.all(np.isfinite(plan)):
+            if not math.isfinite(float(plan.sum())):  # a NaN or inf anywhere makes the sum non-finite
                 raise _SolveError("non-finite solution")
             _cpu_over_budget(time.thread_time() - cpu, self.time_budget_s)
             self._plan = plan
@@ -278,9 +278,16 @@ class DiffDriveMpc:
             self._plan = np.zeros(2 * self.horizon)
             logger.warning("eBot MPC fallback #%d: %s", self.fallbacks, status)
             wheels = self.heuristic.wheels(desired[None, :], np.array([np.nan]), np.array([heading]))[0]
-        wheels = np.clip(np.nan_to_num(wheels), -vmax, vmax)
+        wheels = _clipped(wheels, vmax)
         self._last_wheels = wheels
         return DiffDriveMpcResult(wheels, ok, used_fallback, elapsed, status)
+
+
+def _clipped(wheels_mps: object, limit: float) -> FloatArray:
+    """A (2,) float copy clipped to [-limit, limit], non-finite entries by numpy.nan_to_num's rule first (NaN -> 0,
+    +-inf -> +-limit): np.clip(np.nan_to_num(w), -limit, limit) without numpy's per-call cost on a 2-vector."""
+    left, right = finite_pair(wheels_mps)
+    return np.array((min(max(left, -limit), limit), min(max(right, -limit), limit)))
 
 
 def _ebot_problem(
