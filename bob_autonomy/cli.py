@@ -145,12 +145,27 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A stream handler that writes to whatever sys.stderr is when a record comes, not to the one it was made
+    with: the vessel's threads log for as long as it runs, and a caller that swapped stderr and closed its copy
+    (a test's capture, a supervisor) must not turn each record into a logging error."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):  # type: ignore[override]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value: object) -> None:
+        pass
+
+
 def _setup_logging(path: str | None, verbose: bool) -> None:
-    handler: logging.Handler
-    if path:
-        handler = logging.handlers.RotatingFileHandler(path, maxBytes=5_000_000, backupCount=3)
-    else:
-        handler = logging.StreamHandler()
+    handler: logging.Handler = (
+        logging.handlers.RotatingFileHandler(path, maxBytes=5_000_000, backupCount=3) if path else _StderrHandler()
+    )
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, handlers=[handler], force=True)
 
