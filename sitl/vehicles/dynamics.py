@@ -81,6 +81,8 @@ def _init_planar_state(body, params, position: FloatArray, heading: FloatArray, 
 def _phi1(x: FloatArray) -> FloatArray:
     """(1 - exp(-x)) / x, with its limit 1 at x = 0 (x >= 0)."""
     small = x < 1e-4
+    if not small.any():  # the usual case: the closed form alone (what np.where would pick, to the bit)
+        return -np.expm1(-x) / x
     safe = np.where(small, 1.0, x)
     return np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -np.expm1(-safe) / safe)
 
@@ -88,6 +90,8 @@ def _phi1(x: FloatArray) -> FloatArray:
 def _phi2(x: FloatArray) -> FloatArray:
     """(x - 1 + exp(-x)) / x^2, with its limit 1/2 at x = 0 (x >= 0)."""
     small = x < 1e-3
+    if not small.any():
+        return (x + np.expm1(-x)) / (x * x)
     safe = np.where(small, 1.0, x)
     return np.where(small, 0.5 - x / 6.0 + x * x / 24.0, (safe + np.expm1(-safe)) / (safe * safe))
 
