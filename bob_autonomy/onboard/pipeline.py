@@ -414,15 +414,13 @@ class MotorboatPipeline(BuoyPipeline):
         if self.use_accelerometer or not self.use_ekf:
             super().feed(readings)
             return
-        rest = []
-        for reading in _flatten(readings):
+        for reading in _flatten(readings):  # in time order: nothing fused by replay that need not be
             if isinstance(reading, ImuReading):
                 a = reading.agents
                 self.estimator.predict(a, reading.t_s, None, self.thrust_world_n[a])
                 self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
             else:
-                rest.append(reading)
-        super().feed(rest)
+                super().feed([reading])
 
     def yaw_rate(self, t_s: float) -> FloatArray:
         """(n,) yaw rate, rad/s: the EKF's, or the filtered heading differences of the simple estimator."""
