@@ -11,6 +11,7 @@ turns into MAVLink.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
 
@@ -52,14 +53,22 @@ def _flatten(readings: SensorReadings | Iterable[object]) -> list[object]:
         batch = [r for r in (readings.imu, readings.gps, readings.compass, readings.encoders) if r is not None]
     else:
         batch = list(readings)
-    return sorted(batch, key=_latest_time) if len(batch) > 1 else batch
+    if len(batch) < 2:
+        return batch
+    keys, latest = [], -math.inf
+    for reading in batch:  # a reading without a finite time stays after those before it
+        own = _latest_time(reading)
+        latest = latest if math.isnan(own) else max(latest, own)
+        keys.append(latest if math.isnan(own) else own)
+    order = sorted(range(len(batch)), key=keys.__getitem__)
+    return [batch[k] for k in order]
 
 
 def _latest_time(reading: object) -> float:
-    """The latest finite measurement time of a reading's rows, s (-inf without one: it goes first)."""
-    times = np.asarray(getattr(reading, "t_s", -np.inf), dtype=float)
+    """The latest finite measurement time of a reading's rows, s (NaN without one)."""
+    times = np.asarray(getattr(reading, "t_s", np.nan), dtype=float)
     finite = times[np.isfinite(times)]
-    return float(finite.max()) if finite.size else -np.inf
+    return float(finite.max()) if finite.size else math.nan
 
 
 class BuoyPipeline:
