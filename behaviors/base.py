@@ -143,6 +143,18 @@ class View:
         """The same view with only the pairs where `keep` (M,) is true."""
         return View(self.table, self.senses, self.rows, self.pair_i[keep], self.pair_j[keep], self.t)
 
+    def part(self, lo: int, hi: int) -> View | None:
+        """The view of rows[lo:hi] alone with the pairs they hear, or None when pair_i is not sorted there.
+
+        pair_i must be sorted (by listener, as the radio delivers it) for a part to hold every pair of its rows;
+        a part checks its own slice, so parts that tile [0, n) all checked prove the whole sorted.
+        """
+        start, stop = np.searchsorted(self.pair_i, (lo, hi))
+        listener = self.pair_i[start:stop]
+        if listener.size and (listener[0] < lo or listener[-1] >= hi or bool(np.any(listener[1:] < listener[:-1]))):
+            return None
+        return View(self.table, self.senses, self.rows[lo:hi], listener - lo, self.pair_j[start:stop], self.t)
+
 
 @dataclass
 class Wish:
@@ -162,6 +174,13 @@ class Wish:
         """Stay in place with no heading preference."""
         return cls(np.zeros((n, 2)), np.full(n, np.nan))
 
+    @classmethod
+    def joined(cls, parts: list[Wish]) -> Wish:
+        """The wishes of consecutive parts of the rows as one (each part with the same memory fields)."""
+        memory = {name: np.concatenate([part.memory[name] for part in parts]) for name in parts[0].memory}
+        velocity = np.concatenate([part.velocity for part in parts])
+        return cls(velocity, np.concatenate([part.heading for part in parts]), memory)
+
 
 class Behavior(ABC):
     """A Markovian update rule: from states, neighbours and senses to a wish.
@@ -173,6 +192,9 @@ class Behavior(ABC):
 
     name: ClassVar[str] = "behavior"
     memory_fields: ClassVar[dict[str, MemorySpec]] = {}
+    # True when step() is a pure function of each row's own data and pairs (no state kept, no draw of random
+    # numbers, nothing summed over rows), so the rows may be stepped in parts (View.part) with the same bits.
+    rowwise: ClassVar[bool] = False
 
     @abstractmethod
     def step(self, view: View) -> Wish:

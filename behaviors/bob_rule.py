@@ -134,6 +134,7 @@ class BobRule(Behavior):
     """
 
     name: ClassVar[str] = "bob-rule"
+    rowwise: ClassVar[bool] = True
     memory_fields: ClassVar[dict[str, MemorySpec]] = {"goal": MemorySpec(shape=(2,))}
     p0: float = 10.0
     H: int = 0

@@ -37,6 +37,7 @@ class AreaCoverage(Behavior):
     """
 
     name: ClassVar[str] = "area-coverage"
+    rowwise: ClassVar[bool] = True
     max_speed: float = 0.2
     threshold: float = 0.05
 

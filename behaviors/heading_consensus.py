@@ -33,6 +33,7 @@ class HeadingConsensus(Behavior):
     """
 
     name: ClassVar[str] = "heading-consensus"
+    rowwise: ClassVar[bool] = True
     cruise_speed: float = 0.0
     resilient_f: int = 0
 
@@ -63,6 +64,7 @@ class HoldHeading(Behavior):
     """
 
     name: ClassVar[str] = "hold-heading"
+    rowwise: ClassVar[bool] = True
     memory_fields: ClassVar[dict[str, MemorySpec]] = {"held_heading": MemorySpec()}
     turn_deg: float = 0.0
     heading_deg: float | None = None

@@ -34,6 +34,7 @@ class Marching(Behavior):
     """
 
     name: ClassVar[str] = "marching"
+    rowwise: ClassVar[bool] = True
     speed: float = 0.2
     r0: float = 0.35
     w_spread: float = 2.0

@@ -7,6 +7,11 @@ JSON line per N. The baseline is the same fleet stepped agent by agent through
 measured where it finishes in reasonable time (N <= --baseline-max-agents):
 `speedup_vs_agent_loop` is the ratio of the two.
 
+A fleet this big spreads its passes over agents and pairs over threads (`sitl.row_threads`: numpy releases
+the GIL in its loops; the results are the same bits). `--threads` sets how many (default: the cores
+available); where that splits the work, the same fleet in one thread is measured in the same run, alternating
+with the threaded one, and `threads_speedup` is the ratio.
+
 Memory, MiB: `rss_mib` is the resident set with the last fleet of that N still
 alive (/proc/self/statm, Linux; absent elsewhere), `peak_rss_mib` the process's
 peak so far (resource.getrusage ru_maxrss), so the N are best run smallest first.
@@ -31,6 +36,7 @@ import time
 from sitl.experiments.scenario import Scenario, validate_scenario
 from sitl.fleets.adapters import AgentFleet
 from sitl.fleets.fleet import LockstepFleet
+from sitl.row_threads import ONE_THREAD, RowThreads, available_cores
 
 SPACING_M = 10.0  # one agent per SPACING_M^2 of water
 NEIGHBOURS = 10
@@ -108,12 +114,26 @@ def main() -> None:
     parser.add_argument("--agents", type=int, nargs="+", default=[100, 1000, 10000, 100000])
     parser.add_argument("--broadcast-period", type=float, default=1.0, help="s between state broadcasts")
     parser.add_argument("--baseline-max-agents", type=int, default=1000, help="largest N for the agent loop")
+    parser.add_argument("--threads", type=int, default=available_cores(), help="threads of the lockstep fleet")
     args = parser.parse_args()
+    threads = RowThreads(args.threads)
     for n in args.agents:
         scenario = open_water_scenario(n, args.broadcast_period)
-        rate, neighbours, resident = steps_per_second(lambda s=scenario: LockstepFleet(s), steps=100, min_seconds=2.0)
+        split = args.threads > 1 and len(threads.ranges(n, NEIGHBOURS * n)) > 1  # (the behaviour's pairs)
+        rates, one_thread = [], []
+        for _ in range(2 if split else 1):  # alternating, so that a drift of the host's speed hits both alike
+            if split:
+                one_thread.append(
+                    steps_per_second(lambda s=scenario: LockstepFleet(s, ONE_THREAD), steps=100, min_seconds=1.0)[0]
+                )
+            rate, neighbours, resident = steps_per_second(
+                lambda s=scenario: LockstepFleet(s, threads), steps=100, min_seconds=1.0 if split else 2.0
+            )
+            rates.append(rate)
+        rate = sum(rates) / len(rates)
         row = {
             "agents": n,
+            "threads": len(threads.ranges(n, NEIGHBOURS * n)),
             "steps_per_s": round(rate, 1),
             "agent_steps_per_s": round(rate * n),
             "real_time_factor": round(rate * DT_S, 1),
@@ -123,6 +143,9 @@ def main() -> None:
             "rss_mib": None if resident is None else round(resident),
             "peak_rss_mib": round(peak_resident_mib()),
         }
+        if one_thread:
+            row["one_thread_steps_per_s"] = round(sum(one_thread) / len(one_thread), 1)
+            row["threads_speedup"] = round(rate / row["one_thread_steps_per_s"], 2)
         if n <= args.baseline_max_agents:
             baseline, _, _ = steps_per_second(
                 lambda s=scenario: AgentFleet(LockstepFleet(s)), steps=10, min_seconds=1.0

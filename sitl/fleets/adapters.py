@@ -53,7 +53,7 @@ class FleetNetwork:
 
     def receive(self) -> list[AgentState]:
         medium, table = self.fleet.medium, self.fleet.medium.table
-        listener, message, _age = medium.heard(self.fleet.t, self.fleet.active)
+        listener, message = medium.heard_pairs(self.fleet.t, self.fleet.active)
         mine = message[listener == self.index]
         new = mine[medium.sent_at_s[mine] > self._last_round]
         out = []

@@ -15,6 +15,7 @@ from behaviors.base import Behavior, MemorySpec, Senses, View, Wish
 from sitl.experiments.scenario import Event, Scenario, ScenarioError
 from sitl.radio.medium import BroadcastMedium
 from sitl.radio.mesh_security import medium_security
+from sitl.row_threads import RowThreads
 from sitl.vehicles.bodies import BODY_KINDS, EBOT, KinematicBodies
 from sitl.world.world import FloatArray, World, points_in_polygon, polygon_segments
 
@@ -147,10 +148,15 @@ def make_bodies(
 
 
 class LockstepFleet:
-    """All agents of a scenario in one process, stepped in lockstep."""
+    """All agents of a scenario in one process, stepped in lockstep.
 
-    def __init__(self, scenario: Scenario) -> None:
+    threads: how a big fleet's passes over its agents and pairs are spread over threads (default: one per core
+    available; the results are the same bits with any number).
+    """
+
+    def __init__(self, scenario: Scenario, threads: RowThreads | None = None) -> None:
         self.scenario = scenario
+        self.threads = RowThreads() if threads is None else threads
         self.rng = np.random.default_rng(scenario.seed)
         self.world = build_world(scenario, self.rng)
         position, heading = initial_poses(scenario, self.world, self.rng)
@@ -174,6 +180,7 @@ class LockstepFleet:
             radio_rng,
             security=medium_security(scenario, self.group_of),  # key, plausibility, intruders, faults
         )
+        self.medium.threads = self.bodies.threads = self.threads
         self.table = self.medium.table
         self.table.ids[: self.n] = np.arange(self.n)
         self.own_memory = {name: self.table.memory[name][: self.n] for name in memory}
@@ -244,7 +251,7 @@ class LockstepFleet:
 
     def decide(self, senses: Senses) -> Wish:
         """Every active agent's wish from its behaviour (velocity m/s, heading rad)."""
-        listener, message, _age = self.medium.heard(self.t, self.active)
+        listener, message = self.medium.heard_pairs(self.t, self.active)
         velocity = np.zeros((self.n, 2))
         heading = np.full(self.n, np.nan)
         local = np.full(self.n, -1, dtype=np.intp)
@@ -259,12 +266,22 @@ class LockstepFleet:
                 keep = local[listener] >= 0
                 view = View(self.table, senses, rows, local[listener[keep]], message[keep], self.t)
                 local[rows] = -1
-            wish = behavior.step(view)
-            velocity[rows] = wish.velocity
-            heading[rows] = wish.heading
+            wish = self._behavior_step(behavior, view)
+            where = slice(None) if rows.size == self.n else rows  # (a slice copies, rows scatter)
+            velocity[where] = wish.velocity
+            heading[where] = wish.heading
             for name, values in wish.memory.items():
                 self.own_memory[name][rows] = values
         return Wish(velocity, heading)
+
+    def _behavior_step(self, behavior: Behavior, view: View) -> Wish:
+        """behavior.step(view); a row-wise behaviour's many rows in parts on the fleet's threads."""
+        ranges = self.threads.ranges(view.n, view.pair_i.size) if behavior.rowwise else [(0, view.n)]
+        if len(ranges) > 1:
+            parts = self.threads.map(lambda lo, hi: _part_step(behavior, view, lo, hi), ranges)
+            if all(part is not None for part in parts):
+                return Wish.joined(parts)
+        return behavior.step(view)  # one part, or pairs not in listener order
 
     def apply_events(self) -> None:
         """Carry out the scheduled events that are due at the current time."""
@@ -305,6 +322,12 @@ class LockstepFleet:
         """Whether any agent has recorded a light target (for search metrics)."""
         light = self.own_memory.get("target_light")
         return bool(light is not None and np.any(np.isfinite(light[self.active])))
+
+
+def _part_step(behavior: Behavior, view: View, lo: int, hi: int) -> Wish | None:
+    """The wish of rows [lo, hi) of the view alone (None when its pairs are not in listener order)."""
+    part = view.part(lo, hi)
+    return None if part is None else behavior.step(part)
 
 
 __all__ = ["EBOT", "LockstepFleet", "build_world", "initial_poses", "points_in_polygon"]

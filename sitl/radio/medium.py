@@ -224,14 +224,28 @@ class BroadcastMedium(FastPathRounds, GeneralPathRounds):
 
     def heard(self, t: float, listening: NDArray[np.bool_]) -> tuple[IntArray, IntArray, FloatArray]:
         """(listener, table row of the message, age s) of every unexpired message heard, by listener then sender."""
+        keep = self._heard_keep(t, listening)
         age = t - self.heard_at
+        if keep is None:
+            return self.listener.copy(), self.message.copy(), age
+        return self.listener[keep], self.message[keep], age[keep]
+
+    def heard_pairs(self, t: float, listening: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
+        """`heard` without the ages, read-only: the medium's own arrays when every message heard is kept (the
+        lockstep fleet's every step; two copies of 10^6 pairs saved at 100,000 agents)."""
+        keep = self._heard_keep(t, listening)
+        if keep is not None:
+            return self.listener[keep], self.message[keep]
+        listener, message = self.listener.view(), self.message.view()
+        listener.flags.writeable = message.flags.writeable = False
+        return listener, message
+
+    def _heard_keep(self, t: float, listening: NDArray[np.bool_]) -> NDArray[np.bool_] | None:
+        """Which messages held are heard at t (s) by the `listening` agents (None: all of them)."""
         # Every message's arrival time is its round's: when every round is within the ages kept, so is
         # every message (the same float64 differences), and only who listens selects.
         rounds = t - np.array(self._round_heard_s)
         if bool(np.all((rounds >= -1e-9) & (rounds <= self.expiry_s + 1e-9))):
-            if bool(np.all(listening)):
-                return self.listener.copy(), self.message.copy(), age
-            keep = listening[self.listener]
-        else:
-            keep = (age >= -1e-9) & (age <= self.expiry_s + 1e-9) & listening[self.listener]
-        return self.listener[keep], self.message[keep], age[keep]
+            return None if bool(np.all(listening)) else listening[self.listener]
+        age = t - self.heard_at
+        return (age >= -1e-9) & (age <= self.expiry_s + 1e-9) & listening[self.listener]

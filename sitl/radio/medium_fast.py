@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 
 from bob_autonomy.core.plausibility import JUMP, TOO_FAR
 from sitl.radio.mesh_security import code_of
+from sitl.row_threads import ONE_THREAD, RowThreads
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -23,6 +24,8 @@ _NEVER = np.int64(-(2**62))  # round number of a candidate pair that holds no me
 
 class FastPathRounds:
     """The fast path's rounds, mixed into BroadcastMedium (which holds the state they use)."""
+
+    threads: RowThreads = ONE_THREAD  # the lockstep fleet's, for the passes over the candidate pairs
 
     def _fast_path_holds(self, senders: IntArray) -> bool:
         """Whether the fast path still gives what the keys would: without vetting always; with it, while
@@ -53,7 +56,7 @@ class FastPathRounds:
         pairs, position = self._pairs, self.table.position
         if pairs.stale(position, senders):
             self._query_pairs(senders)
-        near = np.flatnonzero(pairs.in_range(position))
+        near = np.flatnonzero(pairs.in_range(position, self.threads))
         self.delivered += near.size
         if self.security is not None:
             none = np.zeros(0, dtype=np.intp)  # no intruders: no deliveries of theirs to add
@@ -62,9 +65,14 @@ class FastPathRounds:
         self._start_round(now)
         if self.security is not None and self.security.checks and near.size:
             refused = self._vet_fast(now, near)
-            if refused is not None:
+            if refused is not None and refused.any():
                 near = near[~refused]
-        self._held_round[near] = self._round
+        held_round, latest = self._held_round, self._round
+
+        def keep(lo: int, hi: int) -> None:  # the new deliveries are sorted candidates: disjoint parts
+            held_round[near[lo:hi]] = latest
+
+        self.threads.map_rows(keep, near.size)
         self._decode_fast()
 
     def _query_pairs(self, senders: IntArray) -> None:
@@ -78,20 +86,42 @@ class FastPathRounds:
         self._queried_in = self._round + 1
 
     def _decode_fast(self) -> None:
-        """listener, sender, message row and arrival time of the messages held, by listener then sender."""
-        self._held_index = np.flatnonzero(self._live(self._held_round))
-        self.listener = self._pairs.listener[self._held_index]
-        self.sender = self._pairs.sender[self._held_index]
-        rank = self._round - self._held_round[self._held_index]
+        """listener, sender, message row and arrival time of the messages held, by listener then sender (the
+        gathers in parts on the medium's threads when many)."""
+        held_round, pairs = self._held_round, self._pairs
+        live = np.empty(held_round.size, dtype=bool)
+
+        def test(lo: int, hi: int) -> None:
+            live[lo:hi] = self._live(held_round[lo:hi])
+
+        self.threads.map_rows(test, held_round.size)
+        index = self._held_index = np.flatnonzero(live)
         first_row = self.n + np.array(self._round_slot, dtype=np.intp) * self.transmitters  # of each round's slot
-        self.message = first_row[rank] + self.sender
-        self.heard_at = np.array(self._round_heard_s)[rank]
+        round_heard_s = np.array(self._round_heard_s)
+        listener, sender = np.empty_like(index), np.empty_like(index)
+        message, heard_at = np.empty_like(index), np.empty(index.size)
+
+        def gather(lo: int, hi: int) -> None:
+            at = index[lo:hi]  # valid indices: "clip" is take's unbuffered mode (with out=), nothing is clipped
+            np.take(pairs.listener, at, out=listener[lo:hi], mode="clip")
+            np.take(pairs.sender, at, out=sender[lo:hi], mode="clip")
+            rank = self._round - held_round[at]
+            np.add(first_row[rank], sender[lo:hi], out=message[lo:hi])
+            np.take(round_heard_s, rank, out=heard_at[lo:hi], mode="clip")
+
+        self.threads.map_rows(gather, index.size)
+        self.listener, self.sender, self.message, self.heard_at = listener, sender, message, heard_at
 
     def _vet_fast(self, now: float, near: IntArray) -> NDArray[np.bool_] | None:
         """`_vet` for the fast path: which new deliveries (candidates `near`) are refused (None: none); those
         are counted. Every agent's id is its index and there are no intruders (no same-round duplicates)."""
         sec, pairs = self.security, self._pairs
-        round_of = self._held_round[near]
+        round_of = np.empty(near.size, dtype=np.int64)
+
+        def gather(lo: int, hi: int) -> None:
+            np.take(self._held_round, near[lo:hi], out=round_of[lo:hi], mode="clip")  # (valid: unbuffered mode)
+
+        self.threads.map_rows(gather, near.size)
         code = None
         if sec.key is not None:
             sender = pairs.sender[near]

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from behaviors.base import as_complex
+from sitl.row_threads import ONE_THREAD, RowThreads
 
 IntArray = NDArray[np.intp]
 KeyArray = NDArray[np.int64]
@@ -109,15 +110,25 @@ class NeighbourPairs:
         """Keys listener * n + sender of the candidates `index` (sorted where `index` is)."""
         return self.listener[index].astype(np.int64) * self.n + self.sender[index]
 
-    def in_range(self, position: NDArray[np.float64]) -> NDArray[np.bool_]:
+    def in_range(self, position: NDArray[np.float64], threads: RowThreads = ONE_THREAD) -> NDArray[np.bool_]:
         """(C,) which candidates are within range_m of each other at `position` ((n, 2) m), by the test of
-        cKDTree.query_pairs (squared distance <= range_m * range_m)."""
+        cKDTree.query_pairs (squared distance <= range_m * range_m); in parts on `threads` when many."""
         # each (x, y) gathered as one complex number (two gathers, not four); the same float operations
         points = as_complex(position[: self.n])
-        d = points[self._first] - points[self._second]
-        d2 = d.real * d.real
-        d2 += d.imag * d.imag
         near = np.empty(self._first.size + 1, dtype=bool)
-        np.less_equal(d2, self._range2, out=near[:-1])
         near[-1] = False  # kept pairs beyond range_m + skin_m
-        return near[self._half]
+
+        def test(lo: int, hi: int) -> None:
+            d = points[self._first[lo:hi]] - points[self._second[lo:hi]]
+            d2 = d.real * d.real
+            d2 += d.imag * d.imag
+            np.less_equal(d2, self._range2, out=near[lo:hi])
+
+        ordered = np.empty(self._half.size, dtype=bool)
+
+        def spread(lo: int, hi: int) -> None:  # each unordered pair's answer to both of its ordered candidates
+            np.take(near, self._half[lo:hi], out=ordered[lo:hi], mode="clip")
+
+        threads.map_rows(test, self._first.size)
+        threads.map_rows(spread, self._half.size)
+        return ordered

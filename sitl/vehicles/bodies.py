@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from sitl.row_threads import ONE_THREAD, RowThreads
 from sitl.world.world import FloatArray, World, ray_segment_distance
 
 BUOY, EBOT, MOTORBOAT = 0, 1, 2
@@ -53,6 +54,8 @@ BODY_SPECS = {
 class KinematicBodies:
     """The ground-truth state of every simulated body, stepped all at once."""
 
+    threads: RowThreads = ONE_THREAD  # the lockstep fleet's, for the buoys' step in parts
+
     def __init__(self, kinds: NDArray[np.int_], position: FloatArray, heading: FloatArray) -> None:
         self.kind = np.asarray(kinds, dtype=int)
         self.position = np.asarray(position, dtype=float).copy()
@@ -77,9 +80,13 @@ class KinematicBodies:
         new_velocity = np.zeros_like(self.velocity)
         new_heading = self.heading.copy()
         if self.buoys.size:
-            b = self.buoys
-            v, h = self._buoy_step(wish_velocity[b], wish_heading[b], self.velocity[b], self.heading[b], dt)
-            new_velocity[b], new_heading[b] = v, h
+
+            def buoys(lo: int, hi: int) -> None:
+                b = self.buoys[lo:hi]
+                v, h = self._buoy_step(wish_velocity[b], wish_heading[b], self.velocity[b], self.heading[b], dt)
+                new_velocity[b], new_heading[b] = v, h
+
+            self.threads.map_rows(buoys, self.buoys.size, 2 * self.buoys.size)  # (the (n, 2) velocities)
         if self.ebots.size:
             e = self.ebots
             v, h = self._ebot_step(wish_velocity[e], wish_heading[e], self.heading[e], dt)
