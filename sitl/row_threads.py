@@ -25,6 +25,8 @@ DEFAULT_MIN_WORK = 100_000
 
 _pools: dict[int, ThreadPoolExecutor] = {}
 _pools_lock = threading.Lock()
+if hasattr(os, "register_at_fork"):  # a forked child has none of its parent's threads: it makes its own pools
+    os.register_at_fork(after_in_child=_pools.clear)
 
 
 def available_cores() -> int:

@@ -138,3 +138,21 @@ def test_a_part_of_pairs_out_of_listener_order_is_refused() -> None:
     first, second = ordered.part(0, 20), ordered.part(20, 40)
     assert first.pair_i.size + second.pair_i.size == 300
     assert first.n == second.n == 20 and second.pair_i.min() >= 0 and first.pair_i.max() < 20
+
+
+def test_a_forked_child_makes_its_own_threads() -> None:
+    """A pool's threads do not survive fork(): the child must not queue work for threads it does not have."""
+    import os
+    import signal
+
+    threads = RowThreads(2, min_work=1)
+    threads.map_rows(lambda lo, hi: hi, 10)  # the parent's pool exists now
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 only if the split work comes back (killed by SIGALRM if it hangs)
+        signal.alarm(10)
+        try:
+            os._exit(0 if threads.map_rows(lambda lo, hi: hi, 10) == [5, 10] else 1)
+        finally:
+            os._exit(2)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
