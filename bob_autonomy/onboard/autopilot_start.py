@@ -10,8 +10,9 @@
    it hears some: "Arm: Radio failsafe on", issue #18), keep them fresh from then on.
 5. Set the driving mode (MANUAL) and see the HEARTBEAT report it.
 6. Wait until the autopilot is ready (3D GPS fix), saying what it waits for every few seconds.
-7. Arm, retrying with backoff; each refusal is reported with ArduPilot's own reasons (the COMMAND_ACK result
-   and its "PreArm: ..." STATUSTEXTs). Arming is never forced unless configured.
+7. Arm, retrying with backoff (an acceptance heard late, or a HEARTBEAT saying armed, ends it); each refusal
+   is reported with ArduPilot's own reasons (the COMMAND_ACK result and its "PreArm: ..." STATUSTEXTs).
+   Arming is never forced unless configured.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ class StartOptions:
     heartbeat_timeout_s: float = 30.0
     ready_timeout_s: float = 120.0
     arm_timeout_s: float = 30.0
+    arm_answer_s: float = 3.0  # how long each arm attempt waits for its answer (a slow radio or busy autopilot)
     force_arm: bool = False
     neutral_lead_s: float = 2.0
     param_timeout_s: float = 6.0
@@ -240,29 +242,38 @@ class AutopilotStarter:
 
     def _arm(self) -> None:
         s, o = self.session, self.options
+        command = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+        first = s.clock()
         end = time.monotonic() + o.arm_timeout_s
+
+        def accepted() -> bool:
+            # Any attempt's acceptance, however late (an answer can take seconds over a slow telemetry radio or
+            # from a busy autopilot), or a HEARTBEAT saying armed: asking again would only repeat the command.
+            return s.armed is True or mavlink.MAV_RESULT_ACCEPTED in s.acks_since(command, first)
+
         backoff = 1.0
         reasons: list[str] = []
         while not self.stopped():
             t0 = s.clock()
-            self.send(s.arm(True, force=o.force_arm))
-            self._wait(1.0, lambda t0=t0: s.take_ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, t0) is not None)
-            result = s.take_ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, t0)
-            if result == mavlink.MAV_RESULT_ACCEPTED:
+            if not accepted():
+                self.send(s.arm(True, force=o.force_arm))
+                self._wait(o.arm_answer_s, lambda t0=t0: accepted() or s.take_ack(command, t0) is not None)
+            if accepted():
                 self._wait(1.0, lambda: s.armed is True)
                 logger.info("autopilot armed%s", " (forced)" if o.force_arm else "")
                 return
+            result = s.take_ack(command, t0)
             self._wait(0.3)  # the reasons follow the ACK
             texts = s.texts_since(t0)
             reasons = texts or reasons
-            word = "no answer" if result is None else RESULT_WORDS.get(result, str(result))
+            word = f"no answer within {o.arm_answer_s:g} s" if result is None else RESULT_WORDS.get(result, str(result))
             self._say(
                 mavlink.MAV_SEVERITY_WARNING,
                 f"autopilot refused to arm ({word})" + (f": {'; '.join(texts)}" if texts else ""),
             )
             if time.monotonic() + backoff >= end:
                 break
-            self._wait(backoff)
+            self._wait(backoff, accepted)
             backoff = min(backoff * 2, 8.0)
         if self.stopped():
             return
