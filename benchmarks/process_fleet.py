@@ -20,6 +20,12 @@ JSON line per run:
     nice -n 10 python benchmarks/process_fleet.py --signal TERM    # stopped by SIGTERM (or INT) after 40 s
     python benchmarks/process_fleet.py --profile-startup --runs 0  # where one process's start-up goes
 
+The vessels run at niceness 10 above the fleet (`--vessel-nice`, as `bob-sitl fleet --vessel-nice 10`): the
+simulated world (physics and autopilots, which are separate hardware on a real boat) keeps wall time, and when
+the cores are short the vessels lag, as slow on-board computers would (their latency_p99_ms says by how much).
+On a 2-core host 45 vessels need about 1.7 cores by themselves; at the same priority as the world, 98-99 % of
+the world's steps began late. `--vessel-nice 0` measures that.
+
 Heavy: run alone, under nice, one at a time (2 cores shared).
 """
 
@@ -192,7 +198,7 @@ def main() -> None:
     parser.add_argument("--launcher", choices=["fork-server", "exec"], default="fork-server")
     parser.add_argument("--runs", type=int, default=1, help="fleets of --agents to run (0: none)")
     parser.add_argument("--base-port", type=int, default=27600, help="vehicle 0's UDP port (mesh: base - 100)")
-    parser.add_argument("--vessel-nice", type=int, default=0, help="the vessels' niceness above the fleet's")
+    parser.add_argument("--vessel-nice", type=int, default=10, help="the vessels' niceness above the fleet's")
     parser.add_argument("--signal", choices=["INT", "TERM"], help="stop the fleet with this signal instead")
     parser.add_argument("--signal-after", type=float, default=40.0, help="wall s after the start, for --signal")
     parser.add_argument("--keep", type=Path, help="keep each run's outputs in this directory")
