@@ -18,6 +18,9 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, wait
 from typing import TypeVar
 
+import numpy as np
+from numpy.typing import NDArray
+
 Result = TypeVar("Result")
 
 # Array elements per range below which a pass is not split.
@@ -85,6 +88,13 @@ class RowThreads:
     def map_rows(self, work: Callable[[int, int], Result], n: int, elements: int | None = None) -> list[Result]:
         """`map` over `ranges(n, elements)`."""
         return self.map(work, self.ranges(n, elements))
+
+    def flatnonzero(self, mask: NDArray[np.bool_]) -> NDArray[np.intp]:
+        """np.flatnonzero(mask) of a 1-D mask, in parts."""
+        ranges = self.ranges(mask.size)
+        if len(ranges) == 1:
+            return np.flatnonzero(mask)
+        return np.concatenate(self.map(lambda lo, hi: np.flatnonzero(mask[lo:hi]) + lo, ranges))
 
 
 ONE_THREAD = RowThreads(1)  # everything in the calling thread (the default of the parts that take `threads`)

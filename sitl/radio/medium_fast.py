@@ -56,7 +56,7 @@ class FastPathRounds:
         pairs, position = self._pairs, self.table.position
         if pairs.stale(position, senders):
             self._query_pairs(senders)
-        near = np.flatnonzero(pairs.in_range(position, self.threads))
+        near = self.threads.flatnonzero(pairs.in_range(position, self.threads))
         self.delivered += near.size
         if self.security is not None:
             none = np.zeros(0, dtype=np.intp)  # no intruders: no deliveries of theirs to add
@@ -95,7 +95,7 @@ class FastPathRounds:
             live[lo:hi] = self._live(held_round[lo:hi])
 
         self.threads.map_rows(test, held_round.size)
-        index = self._held_index = np.flatnonzero(live)
+        index = self._held_index = self.threads.flatnonzero(live)
         first_row = self.n + np.array(self._round_slot, dtype=np.intp) * self.transmitters  # of each round's slot
         round_heard_s = np.array(self._round_heard_s)
         listener, sender = np.empty_like(index), np.empty_like(index)

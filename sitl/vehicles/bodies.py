@@ -99,7 +99,13 @@ class KinematicBodies:
             new_velocity[m], new_heading[m] = v, h
         new_velocity[~self.active] = 0.0
         new_heading[~self.active] = self.heading[~self.active]
-        proposed = self.position + new_velocity * dt
+        proposed, heading = np.empty_like(self.position), np.empty_like(new_heading)
+
+        def move(lo: int, hi: int) -> None:  # (heading wrapped to [-pi, pi))
+            np.add(self.position[lo:hi], new_velocity[lo:hi] * dt, out=proposed[lo:hi])
+            np.subtract(np.mod(new_heading[lo:hi] + np.pi, 2 * np.pi), np.pi, out=heading[lo:hi])
+
+        self.threads.map_rows(move, len(self), 2 * len(self))
         if world.walls.shape[0]:
             moving = self.active
             proposed[moving], contact = world.push_out_of_walls(proposed[moving], self.radius[moving])
@@ -107,7 +113,7 @@ class KinematicBodies:
             new_velocity = (proposed - self.position) / dt
         self.position = proposed
         self.velocity = new_velocity
-        self.heading = np.mod(new_heading + np.pi, 2 * np.pi) - np.pi
+        self.heading = heading
 
     @staticmethod
     def _buoy_step(wish_v: FloatArray, wish_h: FloatArray, v: FloatArray, h: FloatArray, dt: float):
