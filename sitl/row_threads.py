@@ -6,7 +6,7 @@ offsets and weights of eq. (3) over 10^6 pairs). Every row is computed by the sa
 the results are the same bits whatever the number of threads. Work of fewer than 2 * `min_work` array elements
 stays in the calling thread: handing work to a thread, and its data to another core's cache, costs more than it
 saves below ~10^5 elements per pass on a 2-core virtual machine (a 10,000-agent fleet stepped 8 % slower split in
-two, a 100,000-agent one 1.5 times faster).
+two, a 100,000-agent one 1.3 times faster).
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ BODY_SPECS = {
 class KinematicBodies:
     """The ground-truth state of every simulated body, stepped all at once."""
 
-    threads: RowThreads = ONE_THREAD  # the lockstep fleet's, for the buoys' step in parts
+    threads: RowThreads = ONE_THREAD  # the lockstep fleet's, for the buoys' step and the move in parts
 
     def __init__(self, kinds: NDArray[np.int_], position: FloatArray, heading: FloatArray) -> None:
         self.kind = np.asarray(kinds, dtype=int)
