@@ -68,7 +68,9 @@ class RowThreads:
     def ranges(self, n: int, work: int | None = None) -> list[tuple[int, int]]:
         """Contiguous (lo, hi) ranges covering [0, n) in order: as many as the threads, and as `work` (array
         elements the n rows' passes touch; default n) allows at min_work each."""
-        k = max(1, min(self.threads, (n if work is None else work) // self.min_work, n))
+        k = min(self.threads, (n if work is None else work) // self.min_work, n)
+        if k <= 1:  # (every small fleet's step, several times: no list to build)
+            return [(0, n)]
         edges = [n * i // k for i in range(k + 1)]
         return list(itertools.pairwise(edges))
 
