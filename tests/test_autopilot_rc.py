@@ -199,6 +199,35 @@ def test_rc_input_update_is_channel_by_channel_update(seed: int) -> None:
         assert rc.radio_in == expected
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_rc_input_update_kept_between_changes_is_channel_by_channel_update(seed: int) -> None:
+    """`update` and `any_override` skip the work while nothing they read has changed: over a run of calls at
+    rising (sometimes equal, sometimes earlier) times, with overrides stored, cleared and expiring and the trims
+    replaced now and then, each result is the reference's."""
+    rng = np.random.default_rng(100 + seed)
+    rc = RcInput(receiver=bool(rng.integers(2)))
+    trims = [1500] * 8
+    timeout = float(rng.choice([-1.0, 0.0, 0.3, 1.0, 3.0]))
+    t = 0.0
+    for _ in range(400):
+        event = rng.random()
+        if event < 0.15:
+            raw = [int(v) if rng.random() < 0.5 else 65535 for v in rng.integers(800, 2200, OVERRIDE_CHANNELS)]
+            rc.apply_override(raw, t)
+        elif event < 0.18:
+            rc.clear_overrides()
+        elif event < 0.21:
+            trims = [int(v) for v in rng.integers(1400, 1600, 8)]
+        elif event < 0.24:
+            timeout = float(rng.choice([-1.0, 0.0, 0.3, 1.0, 3.0]))
+        t = max(0.0, t + float(rng.choice([0.0, 0.05, 0.1, 0.25, -0.1])))
+        expected = _update_channel_by_channel(rc, t, timeout, trims)
+        expected_any = any(rc.has_override(i, t, timeout) for i in range(OVERRIDE_CHANNELS))
+        rc.update(t, timeout, trims)
+        assert rc.radio_in == expected
+        assert rc.any_override(t, timeout) == expected_any
+
+
 def test_a_calibration_change_acts_on_the_override_already_in_force() -> None:
     """The pilot input is kept between reads only while RC input and parameters stay: reversing the throttle
     channel turns the same override into thrust astern at the next motor output."""

@@ -70,8 +70,15 @@ class RcInput:
     radio_in: list[int] = field(default_factory=lambda: [0] * OVERRIDE_CHANNELS)
     last_valid_s: float = -math.inf  # when RC input was last "new" (Rover::read_radio last_valid_rc_ms)
 
+    # What the last `update` found, and when it stays true (see `_unchanged`): (override list, override_t list,
+    # mutations, timeout, t_s, the earliest live override's time or None, any live); None: nothing yet.
+    _live: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _mutations: int = field(default=0, init=False, repr=False, compare=False)
+    _inputs: tuple | None = field(default=None, init=False, repr=False, compare=False)  # trims, radio_in, receiver
+
     def apply_override(self, raw: list[int], t_s: float) -> None:
         """Store an RC_CHANNELS_OVERRIDE's 18 values (GCS_Common.cpp handle_rc_channels_override)."""
+        self._mutations += 1
         for i, value in enumerate(raw[:OVERRIDE_CHANNELS]):
             if i < 8:
                 if value == UINT16_MAX:
@@ -98,7 +105,24 @@ class RcInput:
             return False
         return t_s - self.override_t[i] < timeout_s
 
+    def _unchanged(self, t_s: float, timeout_s: float) -> bool:
+        """True when which overrides are live is what the last `update` found: no override stored or cleared
+        since, the same timeout, and t_s no earlier and before the first live override expires (an expired one
+        stays expired as time goes on; t_s - since < timeout is monotone in since)."""
+        live = self._live
+        return (
+            live is not None
+            and live[0] is self.override
+            and live[1] is self.override_t
+            and live[2] == self._mutations
+            and live[3] == timeout_s
+            and live[4] <= t_s
+            and (live[5] is None or t_s - live[5] < timeout_s)
+        )
+
     def any_override(self, t_s: float, timeout_s: float) -> bool:
+        if self._unchanged(t_s, timeout_s):
+            return self._live[6]
         if timeout_s == 0:
             return False
         live = (t_s - self.override_t[i] < timeout_s for i in range(OVERRIDE_CHANNELS) if self.override[i])
@@ -106,7 +130,19 @@ class RcInput:
 
     def update(self, t_s: float, timeout_s: float, trims: list[int]) -> None:
         """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value. (The test
-        of `has_override` inlined, all channels in one comprehension: this runs for every vehicle at every step.)"""
+        of `has_override` inlined, all channels in one comprehension; skipped while nothing it reads has changed:
+        this runs for every vehicle several times a step.)"""
+        inputs = self._inputs
+        if (
+            inputs is not None
+            and inputs[0] is trims
+            and inputs[1] is self.radio_in
+            and inputs[2] == self.receiver
+            and self._unchanged(t_s, timeout_s)
+        ):
+            if self.receiver:
+                self.last_valid_s = t_s
+            return
         override, override_t = self.override, self.override_t
         if timeout_s == 0:  # overrides disabled
             live = [False] * OVERRIDE_CHANNELS
@@ -120,6 +156,10 @@ class RcInput:
             self.last_valid_s = t_s
         else:
             self.radio_in[:] = [v if on else r for v, on, r in zip(override, live, self.radio_in, strict=True)]
+        expiring = [since for since, on in zip(override_t, live, strict=True) if on] if timeout_s > 0 else []
+        first = min(expiring) if expiring else None
+        self._live = (override, override_t, self._mutations, timeout_s, t_s, first, any(live))
+        self._inputs = (trims, self.radio_in, self.receiver)
 
 
 @dataclass

@@ -286,11 +286,12 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         self._t = t_s
         timeout = self.failsafe_s
         self.rc.update(t_s, timeout, self._trims())
-        if self._driving_override and not self.rc.any_override(t_s, timeout):
+        live = self.rc.any_override(t_s, timeout)
+        if self._driving_override and not live:
             self._driving_override = False
             if self.armed and self.mode in DRIVING_MODES and np.any(self._command):
                 self.counters.failsafes += 1  # the override expired while driving: the vehicle stops
-        self.in_failsafe = not self.rc.any_override(t_s, timeout)
+        self.in_failsafe = not live
         self._failsafes(t_s)
         if t_s >= self._next_home_check_s:
             self._next_home_check_s = t_s + 1.0
