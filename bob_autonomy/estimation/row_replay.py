@@ -104,15 +104,13 @@ class _RowReplay:
         codes = self._handle(kind, idx, t, data)
         call = (kind, data)
         block = self._snapshot(idx)
-        window = self.params.replay_window_s
-        pruned = self._pruned
-        for r, (a, ta, code, now) in enumerate(
-            zip(idx.tolist(), t.tolist(), codes.tolist(), self.t[idx].tolist(), strict=True)
-        ):
-            log, times = self._logs[a], self._times[a]
+        # Keep the window's entries and the one before (the state to restart from): cut at filter time - window.
+        cuts = (self.t[idx] - self.params.replay_window_s).tolist()
+        pruned, logs, all_times = self._pruned, self._logs, self._times
+        for r, (a, ta, code, cut) in enumerate(zip(idx.tolist(), t.tolist(), codes.tolist(), cuts, strict=True)):
+            log, times = logs[a], all_times[a]
             log.append([ta, call, r, block, r, code])
             times.append(ta)
-            cut = now - window  # keep the window's entries and the one before (the state to restart from)
             if len(times) > 1 and times[1] <= cut:
                 j = bisect.bisect_right(times, cut) - 1
                 for entry in log[:j]:

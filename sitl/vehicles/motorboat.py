@@ -318,26 +318,38 @@ class MotorboatDynamics:
 
         substeps = max(1, math.ceil(dt_s / self.max_substep_s - 1e-9))
         h = dt_s / substeps
+        # Loop invariants and values reused within a sub-step are computed once: the same operations on the same
+        # operands, so the same bits as computing them where they are used (runs stay byte-identical).
+        slew_h = self.slew[a] * h
+        every_outboard = bool(outboard.all())
+        c, s = np.cos(heading), np.sin(heading)
         for _ in range(substeps):
-            steer = steer + np.clip(target - steer, -self.slew[a] * h, self.slew[a] * h)
-            c, s = np.cos(heading), np.sin(heading)
+            steer = steer + np.minimum(np.maximum(target - steer, -slew_h), slew_h)
             rel = v_ground - water
             u, v = c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]
+            abs_u = np.abs(u)
             to_air = w - v_ground
             air_force = (air * _norm(to_air))[:, None] * to_air
             air_x, air_y = c * air_force[:, 0] + s * air_force[:, 1], -s * air_force[:, 0] + c * air_force[:, 1]
             delta = max_delta * steer
-            along = np.where(outboard, t_a * np.cos(delta), t_a)
-            side = np.where(outboard, t_a * np.sin(delta), rudder * u * np.abs(u) * np.sin(delta))
+            sin_delta = np.sin(delta)
+            if every_outboard:
+                along, side = t_a * np.cos(delta), t_a * sin_delta
+            else:
+                along = np.where(outboard, t_a * np.cos(delta), t_a)
+                side = np.where(outboard, t_a * sin_delta, rudder * u * abs_u * sin_delta)
             force_x = along + air_x + m_v * v * r
             force_y = side + air_y - m_u * u * r
             moment = -lever * side + torque
-            u_new = (u + h * force_x / m_u) / (1.0 + h * (c1u + c2u * np.abs(u)) / m_u)
+            u_new = (u + h * force_x / m_u) / (1.0 + h * (c1u + c2u * abs_u) / m_u)
             v_new = (v + h * force_y / m_v) / (1.0 + h * (c1v + c2v * np.abs(v)) / m_v)
-            r = (r + h * moment / inertia) / (1.0 + h * damping * (np.abs(u) + floor) / inertia)
+            r = (r + h * moment / inertia) / (1.0 + h * damping * (abs_u + floor) / inertia)
             heading = heading + h * r
             c, s = np.cos(heading), np.sin(heading)
-            v_ground = water + np.column_stack((c * u_new - s * v_new, s * u_new + c * v_new))
+            ground = np.empty_like(v_ground)
+            ground[:, 0] = c * u_new - s * v_new
+            ground[:, 1] = s * u_new + c * v_new
+            v_ground = water + ground
             x = x + h * v_ground
 
         self.position_m[a], self.velocity_mps[a] = x, v_ground
