@@ -287,14 +287,17 @@ class BuoyDynamics:
         yaw_rate_decay = p.yaw_damping_nms_per_rad / p.yaw_inertia_kgm2 * h
         # The yaw integrator's factors depend on h alone: one value, broadcast over the buoys at each substep.
         yaw_phi1, yaw_phi2 = _phi1(np.full(1, yaw_rate_decay)), _phi2(np.full(1, yaw_rate_decay))
+        slew = p.thrust_slew_radps * h
         for _ in range(substeps):
             turn = wrap_angle(target - nozzle)
-            nozzle = nozzle + np.clip(turn, -p.thrust_slew_radps * h, p.thrust_slew_radps * h)
+            nozzle = nozzle + np.minimum(np.maximum(turn, -slew), slew)
             world_angle = heading + nozzle
-            thrust = mag[:, None] * np.column_stack((np.cos(world_angle), np.sin(world_angle)))
+            direction = np.empty_like(v)
+            direction[:, 0], direction[:, 1] = np.cos(world_angle), np.sin(world_angle)
+            thrust = mag[:, None] * direction
 
             # Predictor with the coefficients at the start, corrector at the midpoint.
-            dv_pred, _ = self._translate(v, thrust, u, w, h, self._coefficients(v, u, w))
+            dv_pred = self._velocity_change(v, thrust, u, w, h, self._coefficients(v, u, w))
             dv, dx = self._translate(v, thrust, u, w, h, self._coefficients(v + 0.5 * dv_pred, u, w))
             x, v = x + dx, v + dv
 
@@ -334,14 +337,39 @@ class BuoyDynamics:
 
         Returns the velocity change (M, 2) m/s and the displacement (M, 2) m.
         """
+        accel, rate = self._acceleration(v, thrust, water, wind, h, coefficients)
+        dv = accel * (h * _phi1(rate))[:, None]
+        dx = h * v + accel * (h * h * _phi2(rate))[:, None]
+        return dv, dx
+
+    def _velocity_change(
+        self,
+        v: FloatArray,
+        thrust: FloatArray,
+        water: FloatArray,
+        wind: FloatArray,
+        h: float,
+        coefficients: tuple[FloatArray, FloatArray],
+    ) -> FloatArray:
+        """The velocity change (M, 2) m/s of `_translate` alone (the predictor needs no displacement)."""
+        accel, rate = self._acceleration(v, thrust, water, wind, h, coefficients)
+        return accel * (h * _phi1(rate))[:, None]
+
+    def _acceleration(
+        self,
+        v: FloatArray,
+        thrust: FloatArray,
+        water: FloatArray,
+        wind: FloatArray,
+        h: float,
+        coefficients: tuple[FloatArray, FloatArray],
+    ) -> tuple[FloatArray, FloatArray]:
+        """The acceleration (M, 2) m/s^2 at v with frozen drag, and h over each drag time constant (M,)."""
         water_coef, air_coef = coefficients
         mass = self.params.effective_mass_kg
         force = thrust + water_coef[:, None] * (water - v) + air_coef[:, None] * (wind - v)
         rate = (water_coef + air_coef) / mass * h  # dimensionless: h / time constant
-        accel = force / mass
-        dv = accel * (h * _phi1(rate))[:, None]
-        dx = h * v + accel * (h * h * _phi2(rate))[:, None]
-        return dv, dx
+        return force / mass, rate
 
 
 # --------------------------------------------------------------------------- eBot
