@@ -211,6 +211,19 @@ class MotorboatCommand:
     speed_ref_mps: float = 0.0
 
 
+@dataclass(frozen=True)
+class _BoatCall:
+    """One MotorboatMpc call's QP inputs: surge u0 m/s and yaw rate r0 rad/s now, heading error rad, speed
+    reference m/s, thrust-fraction bounds and the throttle available."""
+
+    u0: float
+    r0: float
+    error: float
+    reference: float
+    bounds: tuple[float, float]
+    limit: float
+
+
 def _finite(value: object, default: float = 0.0) -> float:
     number = float(value)  # type: ignore[arg-type]
     return number if math.isfinite(number) else default
@@ -477,6 +490,23 @@ class MotorboatMpc:
         t_s: the time, s (None: none known): a holding boat whose wish stays above the hold speed for HOLD_DWELL_S
         gets under way (References).
         """
+        call = self._prepare(
+            desired_velocity_mps, velocity_mps, water_velocity_mps, heading_rad, yaw_rate_radps, max_throttle, t_s
+        )
+        return call if isinstance(call, MotorboatCommand) else self._solve_call(call)
+
+    def _prepare(
+        self,
+        desired_velocity_mps: FloatArray,
+        velocity_mps: FloatArray,
+        water_velocity_mps: FloatArray,
+        heading_rad: float,
+        yaw_rate_radps: float,
+        max_throttle: float,
+        t_s: float | None,
+    ) -> MotorboatCommand | _BoatCall:
+        """The references of a call (`solve`'s arguments); the hold's command when there is nothing to solve,
+        else the QP's inputs (counted as a solve; a boat without a plan is linearised about its speed now)."""
         d, v, w = _pair(desired_velocity_mps), _pair(velocity_mps), _pair(water_velocity_mps)
         psi, r0 = _finite(heading_rad), _finite(yaw_rate_radps)
         limit = min(max(_finite(max_throttle), 0.0), 1.0)
@@ -487,40 +517,52 @@ class MotorboatMpc:
             self._previous = (self.model.fraction_of(throttle), self._slewed(0.0))
             self.last_plan = None
             return MotorboatCommand(throttle, self._previous[1], True, False, 0.0, "hold")
-        bounds = self.fallback.fraction_bounds(reference, limit)
         self.solves += 1
-        ok, fallback, status = True, False, "optimal"
         if self.last_plan is None:  # no plan to linearise about: the speed now, steering straight
             self._bar[:] = u0
+        return _BoatCall(u0, r0, error, reference, self.fallback.fraction_bounds(reference, limit), limit)
+
+    def _solve_call(self, call: _BoatCall) -> MotorboatCommand:
+        """The QP of a prepared call solved on its own (bob_autonomy.control.motorboat_mpc_batch solves many at
+        once), or the fallback after any failure, then the command."""
         start, cpu = time.perf_counter(), time.thread_time()
         try:
-            plan = self._solve_qp(u0, r0, error, reference, bounds)
+            plan = self._solve_qp(call.u0, call.r0, call.error, call.reference, call.bounds)
             elapsed = time.perf_counter() - start
             if not np.isfinite(plan).all():
                 raise _SolveError("non-finite solution")
             # CPU time, as the buoy MPC: on a busy computer a quick solve can wait for the processor (wall time).
             _cpu_over_budget(time.thread_time() - cpu, self.time_budget_s)
-            fraction, steering = float(plan[0, 0]), float(plan[0, 1])
             self.last_plan = plan
             speeds = self._speeds
             speeds.inputs["i0"][:] = plan[:, 0]
-            speeds.inputs["i1"][0] = u0
+            speeds.inputs["i1"][0] = call.u0
             speeds()
             self._bar[:] = speeds.outputs["o0"]
         except Exception as error_:  # any failure of the solve: the boat still gets a command
-            elapsed = time.perf_counter() - start
+            return self._finish(call, error_, time.perf_counter() - start)
+        return self._finish(call, plan, elapsed)
+
+    def _finish(self, call: _BoatCall, outcome: FloatArray | Exception, elapsed: float) -> MotorboatCommand:
+        """The command from the first step of a plan (horizon, 2), or the fallback's after a failure (an
+        exception, counted and logged), bounded and slewed; it becomes the previous command."""
+        if isinstance(outcome, Exception):
             ok, fallback = False, True
-            status = f"fallback: {type(error_).__name__}: {error_}"
+            status = f"fallback: {type(outcome).__name__}: {outcome}"
             self.fallbacks += 1
             self.last_plan = None
             logger.warning("motorboat MPC fallback #%d: %s", self.fallbacks, status)
-            throttle, steering = self.fallback.law(error, reference, u0, r0, limit)
+            throttle, steering = self.fallback.law(call.error, call.reference, call.u0, call.r0, call.limit)
             fraction = self.model.fraction_of(throttle)
+        else:
+            ok, fallback, status = True, False, "optimal"
+            fraction, steering = float(outcome[0, 0]), float(outcome[0, 1])
+        bounds = call.bounds
         fraction = min(max(fraction, bounds[0]), bounds[1])
         steering = self._slewed(min(max(steering, -1.0), 1.0))
         self._previous = (fraction, steering)
         throttle = self.model.throttle_of(fraction)
-        return MotorboatCommand(throttle, steering, ok, fallback, elapsed, status, error, reference)
+        return MotorboatCommand(throttle, steering, ok, fallback, elapsed, status, call.error, call.reference)
 
     def _slewed(self, steering: float) -> float:
         """`steering` moved at most one step's slew from the previous command."""

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from bob_autonomy.control.buoy_mpc_batch import BuoyMpcBatch
 from bob_autonomy.control.ebot_mpc import DiffDriveMpc
 from bob_autonomy.control.motorboat_control import MotorboatCommand, MotorboatController, MotorboatModel, MotorboatMpc
+from bob_autonomy.control.motorboat_mpc_batch import MotorboatMpcBatch
 from bob_autonomy.control.mpc import BuoyMpc
 from bob_autonomy.control.velocity_control import BuoyModel, BuoyVelocityController, DiffDriveController
 from bob_autonomy.core.arrays import wrap
@@ -379,6 +380,8 @@ class MotorboatPipeline(BuoyPipeline):
         step = max(dt_s, 0.5)  # the MPC plans in steps of at least 0.5 s (6 s ahead), called every dt_s
         budget = mpc_time_budget_s
         self.mpcs = [MotorboatMpc(m, step_s=step, time_budget_s=budget) for m in each] if self.use_mpc else []
+        # In simulated time (no budget) a fleet's solves are made together, with the same results.
+        self.motorboat_batch = MotorboatMpcBatch(self.mpcs) if MotorboatMpcBatch.fits(self.mpcs) else None
         self.last_commands: list[MotorboatCommand | None] = [None] * n
         self._heading_t = np.full(n, np.nan)  # for the yaw rate of the simple estimator (heading differences)
         self._heading = np.full(n, np.nan)
@@ -454,12 +457,19 @@ class MotorboatPipeline(BuoyPipeline):
             self.thrust_world_n = np.zeros((self.n, 2))
             return out
         water = self.drift()
-        for k in range(self.n):
-            args = (wish_mps[k], estimate.velocity[k], water[k], estimate.heading[k], rate[k])
-            if self.use_mpc:
-                cmd = self.mpcs[k].solve(*args, max_throttle=self.max_throttle[k], t_s=t_s)
-            else:
-                cmd = self.controllers[k].command(*args, limit=self.max_throttle[k], t_s=t_s)
+        if self.motorboat_batch is not None:
+            commands = self.motorboat_batch.solve(
+                wish_mps, estimate.velocity, water, estimate.heading, rate, self.max_throttle, t_s
+            )
+        else:
+            commands = []
+            for k in range(self.n):
+                args = (wish_mps[k], estimate.velocity[k], water[k], estimate.heading[k], rate[k])
+                if self.use_mpc:
+                    commands.append(self.mpcs[k].solve(*args, max_throttle=self.max_throttle[k], t_s=t_s))
+                else:
+                    commands.append(self.controllers[k].command(*args, limit=self.max_throttle[k], t_s=t_s))
+        for k, cmd in enumerate(commands):
             self.last_commands[k] = cmd
             out[k] = cmd.throttle, cmd.steering
         heading = np.nan_to_num(estimate.heading)
