@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from bob_autonomy.control.mpc import BuoyMpc, MpcResult, _Call
-from bob_autonomy.control.qp import _BufferedCall, _SolveError
+from bob_autonomy.control.qp import _BufferedCall, _SolveError, share_one_mapped_call
 from bob_autonomy.core.arrays import FloatArray
 
 
@@ -51,18 +51,8 @@ class BuoyMpcBatch:
 
     @staticmethod
     def fits(controllers: Sequence[BuoyMpc]) -> bool:
-        """Whether these controllers can be solved together."""
-        if len(controllers) < 2:
-            return False
-        first = controllers[0]
-        return isinstance(first, BuoyMpc) and all(
-            isinstance(c, BuoyMpc)
-            and c._qp.function is first._qp.function
-            and c.solver == "daqp"
-            and math.isinf(c.time_budget_s)
-            and c.max_thrust_change_n == first.max_thrust_change_n
-            for c in controllers
-        )
+        """Whether these controllers can be solved together (one QP and thrust step: see share_one_mapped_call)."""
+        return share_one_mapped_call(controllers, BuoyMpc, lambda c: (c._qp.function, c.max_thrust_change_n))
 
     def solve(
         self,

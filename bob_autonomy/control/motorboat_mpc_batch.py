@@ -15,18 +15,23 @@ batched: one model and tuning (the same casadi Functions), DAQP, and no CPU-time
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from bob_autonomy.control.motorboat_control import MotorboatCommand, MotorboatMpc, _BoatCall
-from bob_autonomy.control.qp import _BufferedCall, _SolveError
+from bob_autonomy.control.qp import _BufferedCall, _SolveError, share_one_mapped_call
 from bob_autonomy.core.arrays import FloatArray
 
 # What a boat with nothing to solve this step is given (its plan is not used): the inputs of the warm-up solve.
 _IDLE_DATA = (0.0, 0.0, 0.5, 1.0, 1.0, 0.0, 0.0)
 _IDLE_BOUNDS = (-0.5, 1.0)
+
+
+def _shared(c: MotorboatMpc) -> tuple:
+    """What boats solved in one call must share: their QP data, conic and plan-speeds Functions, and the most
+    steering change per plan step."""
+    return c._qp.function, c._data.function, c._speeds.function, c.model.steering_slew_per_s * c.step_s
 
 
 class MotorboatMpcBatch:
@@ -58,20 +63,9 @@ class MotorboatMpcBatch:
 
     @staticmethod
     def fits(controllers: Sequence[MotorboatMpc]) -> bool:
-        """Whether these controllers can be solved together."""
-        if len(controllers) < 2:
-            return False
-        first = controllers[0]
-        return isinstance(first, MotorboatMpc) and all(
-            isinstance(c, MotorboatMpc)
-            and c._qp.function is first._qp.function
-            and c._data.function is first._data.function
-            and c._speeds.function is first._speeds.function
-            and c.solver == "daqp"
-            and math.isinf(c.time_budget_s)
-            and c.model.steering_slew_per_s * c.step_s == first.model.steering_slew_per_s * first.step_s
-            for c in controllers
-        )
+        """Whether these controllers can be solved together (the same Functions and steering slew: see
+        share_one_mapped_call)."""
+        return share_one_mapped_call(controllers, MotorboatMpc, _shared)
 
     def solve(
         self,

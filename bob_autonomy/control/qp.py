@@ -5,6 +5,8 @@ CPU-time budget check, and the inputs made finite (a non-finite entry counts as 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -87,6 +89,24 @@ class _BufferedCall:
 
     def stats(self) -> dict[str, object]:
         return self.buffer.stats()
+
+
+def share_one_mapped_call(controllers: Sequence[Any], kind: type, shared: Callable[[Any], tuple]) -> bool:
+    """Whether `controllers` can be solved in one mapped call (bob_autonomy.control.buoy_mpc_batch,
+    motorboat_mpc_batch): two or more `kind` controllers using DAQP without a CPU-time budget (simulated time: a
+    budget is per solve), whose `shared(c)` agree (casadi Functions by identity, anything else by value)."""
+    if len(controllers) < 2 or not all(isinstance(c, kind) for c in controllers):
+        return False
+    first = shared(controllers[0])
+    return all(
+        c.solver == "daqp"
+        and math.isinf(c.time_budget_s)
+        and all(
+            (mine is theirs) if isinstance(theirs, ca.Function) else mine == theirs
+            for mine, theirs in zip(shared(c), first, strict=True)
+        )
+        for c in controllers
+    )
 
 
 def _conic(name: str, plugin: str, hessian: ca.Sparsity, constraints: ca.Sparsity) -> ca.Function:

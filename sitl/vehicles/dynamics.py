@@ -297,7 +297,8 @@ class BuoyDynamics:
             thrust = mag[:, None] * direction
 
             # Predictor with the coefficients at the start, corrector at the midpoint.
-            dv_pred = self._velocity_change(v, thrust, u, w, h, self._coefficients(v, u, w))
+            accel, h_over_tau = self._acceleration(v, thrust, u, w, h, self._coefficients(v, u, w))
+            dv_pred = accel * (h * _phi1(h_over_tau))[:, None]  # (the predictor needs no displacement)
             dv, dx = self._translate(v, thrust, u, w, h, self._coefficients(v + 0.5 * dv_pred, u, w))
             x, v = x + dx, v + dv
 
@@ -341,19 +342,6 @@ class BuoyDynamics:
         dv = accel * (h * _phi1(rate))[:, None]
         dx = h * v + accel * (h * h * _phi2(rate))[:, None]
         return dv, dx
-
-    def _velocity_change(
-        self,
-        v: FloatArray,
-        thrust: FloatArray,
-        water: FloatArray,
-        wind: FloatArray,
-        h: float,
-        coefficients: tuple[FloatArray, FloatArray],
-    ) -> FloatArray:
-        """The velocity change (M, 2) m/s of `_translate` alone (the predictor needs no displacement)."""
-        accel, rate = self._acceleration(v, thrust, water, wind, h, coefficients)
-        return accel * (h * _phi1(rate))[:, None]
 
     def _acceleration(
         self,
