@@ -175,6 +175,35 @@ def test_overrides_the_autopilot_does_not_apply_are_noticed() -> None:
     assert s.ignoring_overrides(10.0)
 
 
+def test_an_override_echoed_late_by_a_slow_link_is_still_taken_for_applied() -> None:
+    """Over a link that delivers 2.2 s late, the RC_CHANNELS the autopilot sends shows the override we sent 2.2 s
+    ago, while we have sent others since: that is an autopilot taking our overrides. One showing none of them, or
+    only one older than the look-back, is not."""
+    now = [0.0]
+    s = AutopilotSession(3, BUOY, Encoder(), clock=lambda: now[0])
+    s.learn()
+    sent = []
+    for k in range(40):  # 4 s of commands at 10 Hz, each throttle a little different
+        now[0] = 0.1 * k
+        sent.append(_parse(s.override(0.0, 0.2 + 0.01 * k, 0.0))[0])
+    autopilot = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+
+    def report(msg) -> None:
+        applied = [msg.chan1_raw, 1500, msg.chan3_raw, msg.chan4_raw] + [1500] * 14
+        s.handle(_parse(autopilot.rc_channels_encode(0, 8, *applied, 255).pack(autopilot))[0])
+
+    report(sent[17])  # at t = 3.9 s, the override of t = 1.7 s
+    assert not s.ignoring_overrides(now[0])
+    assert s.ignoring_overrides(now[0], lag_s=0.0)  # the look-back of old: an autopilot that ignores us
+    s.handle(_parse(autopilot.rc_channels_encode(0, 8, *([1500] * 18), 255).pack(autopilot))[0])
+    assert s.ignoring_overrides(now[0])  # neutral, which we never sent
+    now[0] = 8.0
+    for _ in range(3):
+        _parse(s.override(0.0, 0.9, 0.0))
+    report(sent[5])  # the override of t = 0.5 s, 7.5 s ago: older than 1.5 + 5 s
+    assert s.ignoring_overrides(now[0])
+
+
 def test_messages_from_another_component_are_not_the_autopilots() -> None:
     s = _session()
     other = mavlink.MAVLink(None, srcSystem=3, srcComponent=191)

@@ -98,6 +98,13 @@ STREAMS_HZ = {
 }
 
 
+# An RC_CHANNELS shows the overrides the autopilot had when it sent it. Over a link that delivers seconds late (a
+# slow telemetry radio, or an autopilot sharing an overloaded computer) that is an override we sent that long
+# ago: with ArduPilot's own SITL behind a link holding its bytes 2 s, the echo of our overrides came 2.2 s after
+# we sent them, and a 1.5 s look-back called a vehicle that took every override one that ignored them
+# (tests/ardupilot/test_real_lagging_link.py). Overrides up to this much older still count as echoed, s.
+OVERRIDE_ECHO_LAG_S = 5.0
+
 RECOVERED_FACTOR = 1.25  # a slow stream counts as recovered at this multiple of its slowest usable rate
 
 
@@ -304,7 +311,7 @@ class AutopilotSession:
         self.rc_in_t: float | None = None
         self._slow_warned: set[int] = set()
         self._streams_requested_at: float | None = None
-        self.sent: deque = deque(maxlen=64)  # (t, {channel: PWM}) of the overrides we sent
+        self.sent: deque = deque(maxlen=128)  # (t, {channel: PWM}) of the overrides we sent (6.5 s at 20 Hz)
 
     # -- what the autopilot says ---------------------------------------------------------------------
 
@@ -537,13 +544,14 @@ class AutopilotSession:
                 return name
         return f"mode {self.custom_mode}"
 
-    def ignoring_overrides(self, now_s: float, window_s: float = 1.5) -> bool:
-        """True when the autopilot's latest RC_CHANNELS (younger than the window) matches none of the overrides we
-        sent in the last `window_s` (within 10 us on every channel we set): it is not taking our overrides (a
-        wrong MAV_GCS_SYSID, RC_OVERRIDE_TIME = 0, or a link that drops our frames)."""
+    def ignoring_overrides(self, now_s: float, window_s: float = 1.5, lag_s: float = OVERRIDE_ECHO_LAG_S) -> bool:
+        """True when the autopilot's latest RC_CHANNELS (younger than `window_s`) matches none of the overrides we
+        sent in the last `window_s` + `lag_s` (within 10 us on every channel we set): it is not taking our
+        overrides (a wrong MAV_GCS_SYSID, RC_OVERRIDE_TIME = 0, or a link that drops our frames). `lag_s`: how
+        much older the override an RC_CHANNELS shows may be, on a link that delivers late."""
         if self.rc_in_t is None or now_s - self.rc_in_t > window_s:
             return False
-        recent = [channels for t, channels in self.sent if now_s - t <= window_s]
+        recent = [channels for t, channels in self.sent if now_s - t <= window_s + lag_s]
         if not recent:
             return False
         return not any(all(abs(self.rc_in.get(c, pwm) - pwm) <= 10 for c, pwm in ch.items()) for ch in recent)

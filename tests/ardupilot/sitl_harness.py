@@ -213,3 +213,66 @@ def local_xy(lat: float, lon: float) -> tuple[float, float]:
         math.radians(lon - HOME[1]) * r * math.cos(math.radians(HOME[0])),
         math.radians(lat - HOME[0]) * r,
     )
+
+
+class LaggingTcpProxy:
+    """A TCP relay to 127.0.0.1:`target` that holds every chunk for a fixed time in each direction: a slow
+    telemetry radio or an overloaded autopilot, between a vessel and the SITL. Use as a context manager; connect
+    to `port`. to_target_s, from_target_s: how long bytes towards and from the target are held, s."""
+
+    def __init__(self, target: int, *, to_target_s: float, from_target_s: float) -> None:
+        self.target, self.delays = target, (to_target_s, from_target_s)
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self._listener.getsockname()[1]
+        self._stop = threading.Event()
+        self._sockets: list[socket.socket] = []
+
+    def __enter__(self) -> LaggingTcpProxy:
+        threading.Thread(target=self._accept, daemon=True).start()
+        return self
+
+    def _accept(self) -> None:
+        self._listener.settimeout(0.2)
+        while not self._stop.is_set():
+            try:
+                client, _ = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            server = socket.create_connection(("127.0.0.1", self.target))
+            self._sockets += [client, server]
+            for source, sink, delay in ((client, server, self.delays[0]), (server, client, self.delays[1])):
+                threading.Thread(target=self._relay, args=(source, sink, delay), daemon=True).start()
+
+    def _relay(self, source: socket.socket, sink: socket.socket, delay_s: float) -> None:
+        held: list[tuple[float, bytes]] = []
+        lock = threading.Lock()
+
+        def release() -> None:
+            while not self._stop.is_set():
+                with lock:
+                    due = [chunk for t, chunk in held if t <= time.monotonic()]
+                    del held[: len(due)]
+                for chunk in due:
+                    try:
+                        sink.sendall(chunk)
+                    except OSError:
+                        return
+                time.sleep(0.01)
+
+        threading.Thread(target=release, daemon=True).start()
+        while not self._stop.is_set():
+            try:
+                chunk = source.recv(65536)
+            except OSError:
+                return
+            if not chunk:
+                return
+            with lock:
+                held.append((time.monotonic() + delay_s, chunk))
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        for s in [self._listener, *self._sockets]:
+            s.close()
