@@ -206,7 +206,10 @@ def as_complex(points: FloatArray) -> NDArray[np.complex128]:
     return np.ascontiguousarray(points, dtype=np.float64).view(np.complex128)[:, 0]
 
 
-def unit(vectors: FloatArray, eps: float = 1e-12) -> FloatArray:
+UNIT_EPS = 1e-12  # norm below which unit() leaves a vector (near) zero rather than dividing by ~0
+
+
+def unit(vectors: FloatArray, eps: float = UNIT_EPS) -> FloatArray:
     """Row-wise unit vectors of (n, 2) `vectors`; zero rows stay zero."""
     norm = np.hypot(vectors[:, 0], vectors[:, 1])
     return vectors / np.maximum(norm, eps)[:, None]

@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from behaviors.base import Behavior, FloatArray, View, Wish, unit
+from behaviors.base import UNIT_EPS, Behavior, FloatArray, View, Wish
 
 
 def repulsion(view: View) -> FloatArray:
@@ -80,4 +80,6 @@ class PerimeterDefense(Behavior):
         magnitude = np.hypot(force[:, 0], force[:, 1])
         speed = self.max_speed * np.clip(magnitude / self.full_speed_at, 0.0, 1.0)
         speed[magnitude < self.dead_band] = 0.0
-        return Wish(unit(force) * speed[:, None], np.full(view.n, np.nan))
+        # unit(force) with its norm taken once (the same bits; hypot is a tenth of this step at 10,000 agents)
+        direction = force / np.maximum(magnitude, UNIT_EPS)[:, None]
+        return Wish(direction * speed[:, None], np.full(view.n, np.nan))

@@ -1,7 +1,7 @@
 """The medium's fast path (no radio channel, no intruders: sitl.radio.neighbour_pairs' Verlet list and what each
 listener holds kept per candidate pair) gives exactly what its general path (sorted keys) gives, round by
-round, on random swarms; the Verlet list finds exactly cKDTree.query_pairs' pairs; the squared-length
-shortcut of the plausibility jump test gives np.hypot's verdicts."""
+round, on random swarms; the Verlet list finds exactly cKDTree.query_pairs' pairs (the squared-length shortcut
+of the plausibility jump test: tests/test_norms.py)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from scipy.spatial import cKDTree
 
 from behaviors.base import MemorySpec
 from sitl.radio.medium import BroadcastMedium
-from sitl.radio.medium_fast import _exceeds
 from sitl.radio.mesh_security import FaultSpec, MediumSecurity, MeshSecuritySpec, PlausibilitySpec
 from sitl.radio.neighbour_pairs import NeighbourPairs
 
@@ -175,19 +174,3 @@ def test_kept_pairs_beyond_the_skin_are_never_in_range() -> None:
     assert pairs.keys(at).tolist() == [2, 7]
     near = pairs.in_range(position)
     assert (pairs.listener[near].tolist(), pairs.sender[near].tolist()) == ([0, 1], [1, 0])
-
-
-def test_squared_length_shortcut_gives_hypots_verdicts() -> None:
-    rng = np.random.default_rng(5)
-    bound = rng.uniform(0.5, 40.0, 200_000)
-    angle = rng.uniform(0.0, 2 * np.pi, bound.size)
-    # lengths at the bound to within a few units in the last place, and some far from it
-    length = bound * (1.0 + rng.integers(-4, 5, bound.size) * np.finfo(float).eps)
-    length[::7] *= rng.uniform(0.0, 2.0, length[::7].size)
-    dx, dy = length * np.cos(angle), length * np.sin(angle)
-    dy[::11] = np.nan  # no held message
-    assert np.array_equal(_exceeds(dx, dy, bound, bound), np.hypot(dx, dy) > bound)
-    tiny = np.full(3, 1e-120)  # bounds where squares underflow: hypot throughout
-    assert np.array_equal(_exceeds(np.array([0.0, 1e-120, 2e-120]), np.zeros(3), tiny, tiny), [False, False, True])
-    nothing = np.full(2, np.nan)
-    assert not _exceeds(np.ones(2), np.ones(2), nothing, nothing).any()

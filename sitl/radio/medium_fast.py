@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bob_autonomy.core.plausibility import JUMP, TOO_FAR
+from sitl.norms import exceeds
 from sitl.radio.mesh_security import code_of
 from sitl.row_threads import ONE_THREAD, RowThreads
 
@@ -182,32 +183,10 @@ class FastPathRounds:
         rank = np.minimum(self._round - round_of, self.rounds_kept)
         row = self.n + slots[rank] * self.transmitters + sender  # the held message's row (where one is held)
         verdict = np.zeros(near.size, dtype=np.int8)
-        verdict[_exceeds(claimed_x - x[row], claimed_y - y[row], bound[rank], bound)] = JUMP
+        verdict[exceeds(claimed_x - x[row], claimed_y - y[row], bound[rank], bound)] = JUMP
         if not limits.max_distance_m > self.range_m * (1.0 + 1e-9):
             listener = pairs.listener[near]
             far_bound = np.array([limits.max_distance_m])
-            far = _exceeds(claimed_x - x[listener], claimed_y - y[listener], far_bound[np.zeros_like(near)], far_bound)
+            far = exceeds(claimed_x - x[listener], claimed_y - y[listener], far_bound[np.zeros_like(near)], far_bound)
             verdict[far] = TOO_FAR
         return index, verdict
-
-
-def _exceeds(dx: FloatArray, dy: FloatArray, bound: FloatArray, bounds: FloatArray) -> NDArray[np.bool_]:
-    """np.hypot(dx, dy) > bound (m; NaN: False), element by element, with the same result as that
-    expression but hypot (13 ns an element) evaluated only where the squared length is within 1e-12 of
-    bound ** 2: hypot is within one unit in the last place of the exact length, dx * dx + dy * dy within
-    three of its square, so farther from the bound both give the same answer. `bounds`: every value
-    `bound` takes; outside [1e-100, 1e100] m (where squares could underflow or overflow) hypot is used
-    throughout."""
-    finite = bounds[np.isfinite(bounds)]
-    if finite.size == 0:
-        return np.zeros(dx.size, dtype=bool)  # NaN bounds: no check
-    if not (finite.min() >= 1e-100 and finite.max() <= 1e100):
-        return np.hypot(dx, dy) > bound
-    length2 = dx * dx
-    length2 += dy * dy
-    bound2 = bound * bound
-    out = length2 > bound2
-    close = np.flatnonzero(np.abs(length2 - bound2) <= 1e-12 * bound2)
-    if close.size:
-        out[close] = np.hypot(dx[close], dy[close]) > bound[close]
-    return out

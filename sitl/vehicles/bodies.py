@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from sitl.norms import exceeds, limit_scale
 from sitl.row_threads import ONE_THREAD, RowThreads
 from sitl.world.world import FloatArray, World, ray_segment_distance
 
@@ -30,6 +31,7 @@ EBOT_SONAR_ANGLES_RAD = np.radians([0.0, 60.0, 120.0, 180.0, -120.0, -60.0])
 # A sonar returns the nearest echo inside its cone (about +-30 degrees), sampled by these rays.
 SONAR_CONE_OFFSETS_RAD = np.radians([-27.0, -13.5, 0.0, 13.5, 27.0])  # no ray shared by two sonars
 EBOT_LIGHT_ANGLES_RAD = np.radians([45.0, -45.0])  # left, right
+_TURN_THRESHOLD_MPS = np.array(0.05)  # a buoy faces its velocity when faster than this, else keeps its heading
 
 
 @dataclass(frozen=True)
@@ -80,9 +82,11 @@ class KinematicBodies:
         new_velocity = np.zeros_like(self.velocity)
         new_heading = self.heading.copy()
         if self.buoys.size:
+            first = int(self.buoys[0])  # rows first..first + n - 1 when the buoys are contiguous: slices, not gathers
+            contiguous = int(self.buoys[-1]) - first == self.buoys.size - 1
 
             def buoys(lo: int, hi: int) -> None:
-                b = self.buoys[lo:hi]
+                b = slice(first + lo, first + hi) if contiguous else self.buoys[lo:hi]
                 v, h = self._buoy_step(wish_velocity[b], wish_heading[b], self.velocity[b], self.heading[b], dt)
                 new_velocity[b], new_heading[b] = v, h
 
@@ -118,14 +122,14 @@ class KinematicBodies:
     @staticmethod
     def _buoy_step(wish_v: FloatArray, wish_h: FloatArray, v: FloatArray, h: FloatArray, dt: float):
         spec = BODY_SPECS[BUOY]
+        # Speed and acceleration limits as min(1, limit / |vector|) and the turn threshold |v| > 0.05 m/s, with
+        # hypot's bits but hypot only where a vector is near its limit (sitl.norms).
         wish_v = np.nan_to_num(wish_v)
-        speed = np.hypot(wish_v[:, 0], wish_v[:, 1])
-        wish_v = wish_v * np.minimum(1.0, spec.max_speed_mps / np.maximum(speed, 1e-12))[:, None]
+        wish_v = wish_v * limit_scale(wish_v, spec.max_speed_mps)[:, None]
         dv = wish_v - v
-        dv_norm = np.hypot(dv[:, 0], dv[:, 1])
-        dv *= np.minimum(1.0, spec.max_accel_mps2 * dt / np.maximum(dv_norm, 1e-12))[:, None]
+        dv *= limit_scale(dv, spec.max_accel_mps2 * dt)[:, None]
         new_v = v + dv
-        moving = np.hypot(new_v[:, 0], new_v[:, 1]) > 0.05
+        moving = exceeds(new_v[:, 0], new_v[:, 1], _TURN_THRESHOLD_MPS, _TURN_THRESHOLD_MPS)
         target_h = np.where(np.isnan(wish_h), np.where(moving, np.arctan2(new_v[:, 1], new_v[:, 0]), h), wish_h)
         return new_v, h + _turn(target_h - h, spec.max_turn_rate_radps * dt)
 
