@@ -110,7 +110,21 @@ def test_the_mixed_fleet_aggregates_in_separate_processes_too(tmp_path) -> None:
     nn_end = nearest_neighbor_m(result.recorder.frames[-1].position)
     assert nn_end.max() < 30.0
     assert m["vehicles"]["refused"] == 0
-    assert m["estimation"]["motorboat"]["position_rms_m"] < 5.0
+    assert m["estimation"]["motorboat"]["position_rms_m"] < 5.0, worst_beliefs(result, m)
+
+
+def worst_beliefs(result, metrics: dict) -> str:
+    """What to look at when a process fleet's belief is far from the truth (it failed once in CI at 7.9 m rms, and
+    has not again, under up to four busy loops): the estimation and realtime figures and the logged frames where a
+    vessel's broadcast belief, carried forward to the frame, was over 5 m off."""
+    far = []
+    for frame in result.recorder.frames:
+        if frame.estimate is None:
+            continue
+        error = np.hypot(*(frame.estimate[:, :2] - frame.position).T)
+        pairs = zip(frame.agents, error, strict=True)
+        far += [(round(frame.t, 1), int(agent), round(float(e), 1)) for agent, e in pairs if e > 5.0]
+    return f"estimation {metrics['estimation']}; realtime {metrics['realtime']}; (t, agent, m) over 5 m: {far[:40]}"
 
 
 @pytest.mark.xdist_group("realtime")
