@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.frames import pack_frame
-from firmware_bridge.rc_channels import RcChannelRange
+from firmware_bridge.rc_channels import STEERING_FULL_SCALE, THROTTLE_FULL_SCALE, RcChannelRange, ResolutionCarry
 
 PWM_NEUTRAL = 1500
 PWM_SPAN = 400  # so commands span 1100..1900
@@ -67,10 +67,11 @@ def _enc(encoder: Encoder | None) -> Encoder:
     return _DEFAULT_ENCODER if encoder is None else encoder
 
 
-def normalised_to_pwm(value: float) -> int:
+def normalised_to_pwm(value: float, full_scale: int = THROTTLE_FULL_SCALE) -> int:
     """[-1, 1] -> the PWM (1100..1900 about 1500) that ArduPilot with its default RC calibration and Rover's 30 us
-    dead zone reads back as `value` (`firmware_bridge.rc_channels`); clipped; NaN/inf -> 1500 (neutral)."""
-    return DEFAULT_RC_RANGE.pwm_for(value)
+    dead zone reads back as `value` to the nearest unit of `full_scale` (whole percent for throttle and lateral,
+    STEERING_FULL_SCALE for steering: `firmware_bridge.rc_channels`); clipped; NaN/inf -> 1500 (neutral)."""
+    return DEFAULT_RC_RANGE.pwm_for(value, full_scale)
 
 
 def _ratio(value: float, scale: float) -> float:
@@ -103,15 +104,20 @@ def rc_override_for_thrust(
     *,
     yaw_command: float = 0.0,
     encoder: Encoder | None = None,
+    carry: ResolutionCarry | None = None,
 ) -> bytes:
     """A buoy's body-frame thrust (x forward, y left; N) as RC overrides: throttle (ch 3) = x / max,
     lateral (ch 4, positive right) = -y / max, steering (ch 1, positive clockwise) = -yaw_command, where
-    yaw_command in [-1, 1] is counter-clockwise positive."""
+    yaw_command in [-1, 1] is counter-clockwise positive. carry: the link's error diffusion of throttle and
+    lateral over the autopilot's whole percent (None: each rounded alone)."""
     x, y = float(thrust_body_n[0]), float(thrust_body_n[1])
+    throttle, lateral = _ratio(x, max_thrust_n), -_ratio(y, max_thrust_n)
+    if carry is not None:
+        throttle, lateral = carry(CHANNEL_THROTTLE, throttle), carry(CHANNEL_LATERAL, lateral)
     channels = {
-        CHANNEL_THROTTLE: normalised_to_pwm(_ratio(x, max_thrust_n)),
-        CHANNEL_LATERAL: normalised_to_pwm(-_ratio(y, max_thrust_n)),
-        CHANNEL_STEERING: normalised_to_pwm(-float(yaw_command)),
+        CHANNEL_THROTTLE: normalised_to_pwm(throttle),
+        CHANNEL_LATERAL: normalised_to_pwm(lateral),
+        CHANNEL_STEERING: normalised_to_pwm(-float(yaw_command), STEERING_FULL_SCALE),
     }
     return rc_override(channels, target_system, target_component, encoder=encoder)
 
@@ -124,15 +130,19 @@ def rc_override_for_wheels(
     target_component: int = 1,
     *,
     encoder: Encoder | None = None,
+    carry: ResolutionCarry | None = None,
 ) -> bytes:
     """Skid-steer wheel speeds as RC overrides the way ArduPilot mixes them back (left = throttle + steering,
     right = throttle - steering): throttle (ch 3) = (left + right) / (2 max), steering (ch 1, positive =
-    turn right) = (left - right) / (2 max)."""
+    turn right) = (left - right) / (2 max). carry: as `rc_override_for_thrust`'s, for the throttle."""
     left = _ratio(left_mps, max_wheel_speed_mps)
     right = _ratio(right_mps, max_wheel_speed_mps)
+    throttle = (left + right) / 2.0
+    if carry is not None:
+        throttle = carry(CHANNEL_THROTTLE, throttle)
     channels = {
-        CHANNEL_THROTTLE: normalised_to_pwm((left + right) / 2.0),
-        CHANNEL_STEERING: normalised_to_pwm((left - right) / 2.0),
+        CHANNEL_THROTTLE: normalised_to_pwm(throttle),
+        CHANNEL_STEERING: normalised_to_pwm((left - right) / 2.0, STEERING_FULL_SCALE),
     }
     return rc_override(channels, target_system, target_component, encoder=encoder)
 

@@ -15,6 +15,18 @@ negated when the channel is REVERSED. `pwm_for` is the exact inverse (u = 0 give
 TRIM), so a wish of 0.78 reaches the autopilot as 0.78 whatever the channel's
 calibration, where a fixed 1500 +- 400 would not (SITL's rover.parm sets
 1000..2000: 1900 us read as 78 % throttle, issue #18).
+
+The autopilot keeps what it reads as an integer (RC_Channel::control_in is an
+int16_t, the float above truncated towards zero) in units of the channel's
+angle: throttle and lateral in whole percent (`set_angle(100)`), steering in
+1/4500 (`set_angle(SERVO_MAX)`). So a throttle under 1 % is read as 0, and a
+small astern throttle is not "negative" to the steering flip of
+PILOT_STEER_TYPE 0 (Rover/mode.cpp `get_pilot_input` tests the integer).
+`control_in` gives that integer, `pwm_for(value, full_scale)` the PWM read as the
+nearest whole unit, and `RcMap.channels_for` flips the steering only when the
+autopilot will read the throttle as negative. `ResolutionCarry` spreads a
+command finer than a unit over successive overrides (error diffusion), so that
+0.3 % of thrust is 1 % in three overrides of ten rather than none at all.
 """
 
 from __future__ import annotations
@@ -24,6 +36,8 @@ from dataclasses import dataclass
 
 PWM_NEUTRAL = 1500
 DEFAULT_DEAD_ZONE_US = 30  # Rover's default for steering, throttle and lateral (Rover/radio.cpp init_rc_in)
+STEERING_FULL_SCALE = 4500  # Rover/radio.cpp set_control_channels: steering set_angle(SERVO_MAX)
+THROTTLE_FULL_SCALE = 100  # throttle and lateral set_angle(100): the autopilot reads them in whole percent
 
 
 @dataclass(frozen=True)
@@ -47,17 +61,50 @@ class RcChannelRange:
             return f"dead zone {self.dead_zone_us} us leaves no travel below TRIM {self.trim_us} (MIN {self.min_us})"
         return None
 
-    def pwm_for(self, value: float) -> int:
-        """The PWM (us) that ArduPilot reads as `value` in [-1, 1] (clipped; NaN or inf -> TRIM, neutral)."""
+    def pwm_for(self, value: float, full_scale: int | None = None) -> int:
+        """The PWM (us) that ArduPilot reads as `value` in [-1, 1] (clipped; NaN or inf -> TRIM, neutral).
+
+        full_scale: the channel's angle (THROTTLE_FULL_SCALE, STEERING_FULL_SCALE): the PWM whose `control_in` is
+        value x full_scale rounded to the nearest unit (half away from zero; under half a unit: TRIM), the
+        nearer of the two PWMs about it when one microsecond spans several units. None: the first PWM past the
+        continuous inverse (read back as `value` to within a microsecond, before the autopilot's truncation).
+        """
         u = float(value)
         if not math.isfinite(u) or u == 0.0:
             return self.trim_us
         u = min(1.0, max(-1.0, -u if self.reversed else u))
-        if u > 0:
-            high = self.trim_us + self.dead_zone_us
-            return min(self.max_us, math.ceil(high + u * (self.max_us - high)))
-        low = self.trim_us - self.dead_zone_us
-        return max(self.min_us, math.floor(low + u * (low - self.min_us)))
+        high, low = self.trim_us + self.dead_zone_us, self.trim_us - self.dead_zone_us
+        if full_scale is None:
+            if u > 0:
+                return min(self.max_us, math.ceil(high + u * (self.max_us - high)))
+            return max(self.min_us, math.floor(low + u * (low - self.min_us)))
+        target = u * full_scale
+        units = int(math.copysign(math.floor(abs(target) + 0.5), target))
+        if units == 0:
+            return self.trim_us
+        edge, span, sign = (high, self.max_us - high, 1) if units > 0 else (low, low - self.min_us, -1)
+        if span <= 0:
+            return self.trim_us
+        step = -((-abs(units) * span) // full_scale)  # ceil: the first PWM read as at least |units| units
+        candidates = [edge + sign * step, edge + sign * (step - 1)] if step > 1 else [edge + sign * step]
+        best = min(candidates, key=lambda pwm: abs(self._raw_units(pwm, full_scale) - target))
+        return min(self.max_us, max(self.min_us, best))
+
+    def _raw_units(self, pwm_us: int, full_scale: int) -> int:
+        """control_in of `pwm_us` before the reversal (the unreversed channel's integer reading)."""
+        r = min(self.max_us, max(self.min_us, int(pwm_us)))
+        high, low = self.trim_us + self.dead_zone_us, self.trim_us - self.dead_zone_us
+        if r > high and self.max_us != high:
+            return (full_scale * (r - high)) // (self.max_us - high)
+        if r < low and low != self.min_us:
+            return -((full_scale * (low - r)) // (low - self.min_us))
+        return 0
+
+    def control_in(self, pwm_us: int, full_scale: int) -> int:
+        """What ArduPilot stores from `pwm_us` (RC_Channel::control_in): pwm_to_angle_dz_trim with high_in =
+        full_scale, truncated towards zero into an integer; negated when REVERSED."""
+        units = self._raw_units(pwm_us, full_scale)
+        return -units if self.reversed else units
 
     def value_of(self, pwm_us: float) -> float:
         """What ArduPilot reads from `pwm_us`, in [-1, 1] (RC_Channel::pwm_to_angle_dz_trim, normalised)."""
@@ -70,6 +117,31 @@ class RcChannelRange:
         else:
             u = 0.0
         return -u if self.reversed else u
+
+
+class ResolutionCarry:
+    """Error diffusion of commands over an autopilot that reads whole units (whole percent of throttle).
+
+    Each call returns the value to send for one channel: the wish plus what earlier overrides of that channel
+    still owe, rounded to the nearest unit (half away from zero); the rounding error is owed to the next one. A
+    steady wish is met on average to well under a unit, where rounding alone would hold it at the nearest unit
+    (under half a percent of thrust: none). A wish of exactly 0 is sent as 0 and clears what is owed (a stop is
+    a stop); what is owed is at most half a unit, also when the wish is beyond full scale.
+    """
+
+    def __init__(self) -> None:
+        self._owed: dict[object, float] = {}
+
+    def __call__(self, channel: object, value: float, full_scale: int = THROTTLE_FULL_SCALE) -> float:
+        """The value in [-1, 1], a whole number of 1 / full_scale, to send on `channel` (any key) for `value`."""
+        u = float(value)
+        if not math.isfinite(u) or u == 0.0:
+            self._owed.pop(channel, None)
+            return 0.0
+        target = min(1.0, max(-1.0, u)) * full_scale + self._owed.get(channel, 0.0)
+        units = min(full_scale, max(-full_scale, int(math.copysign(math.floor(abs(target) + 0.5), target))))
+        self._owed[channel] = min(0.5, max(-0.5, target - units))
+        return units / full_scale
 
 
 @dataclass(frozen=True)
@@ -103,11 +175,20 @@ class RcMap:
                 return f"{what} channel {channel}: {why}"
         return None
 
-    def channels_for(self, steering: float, throttle: float, lateral: float | None) -> dict[int, int]:
+    def channels_for(
+        self, steering: float, throttle: float, lateral: float | None, *, flip_in_reverse: bool = False
+    ) -> dict[int, int]:
         """{channel: PWM} for normalised steering (positive = turn right), throttle (positive = forward) and
-        lateral (positive = right; None leaves the lateral channel at its TRIM)."""
+        lateral (positive = right; None leaves the lateral channel at its TRIM), each the nearest the autopilot
+        can read (whole percent; steering in 1/4500). flip_in_reverse (PILOT_STEER_TYPE 0 or 2): the steering
+        is sent negated when the autopilot will read the throttle as negative, as it negates it back then; a
+        throttle under half a percent astern is read as 0 and the steering goes as it is."""
+        throttle_range = self.range_of(self.throttle)
+        throttle_pwm = throttle_range.pwm_for(throttle, THROTTLE_FULL_SCALE)
+        if flip_in_reverse and throttle_range.control_in(throttle_pwm, THROTTLE_FULL_SCALE) < 0:
+            steering = -steering
         return {
-            self.steering: self.range_of(self.steering).pwm_for(steering),
-            self.throttle: self.range_of(self.throttle).pwm_for(throttle),
-            self.lateral: self.range_of(self.lateral).pwm_for(0.0 if lateral is None else lateral),
+            self.steering: self.range_of(self.steering).pwm_for(steering, STEERING_FULL_SCALE),
+            self.throttle: throttle_pwm,
+            self.lateral: self.range_of(self.lateral).pwm_for(0.0 if lateral is None else lateral, THROTTLE_FULL_SCALE),
         }

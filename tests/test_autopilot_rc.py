@@ -46,10 +46,30 @@ def test_scaling_is_rc_channels_pwm_to_angle(pwm, calib, expected) -> None:
     assert scale_angle(pwm, *calib) == pytest.approx(expected)
 
 
+@pytest.mark.parametrize(
+    ("pwm", "calib", "full_scale", "expected"),
+    [
+        (1900, (1000, 1500, 2000, 30, False), 100, 0.78),  # 78.7 % kept as the integer 78
+        (1534, (1000, 1500, 2000, 30, False), 100, 0.0),  # 0.85 %: under 1 %, read as 0
+        (1535, (1000, 1500, 2000, 30, False), 100, 0.01),
+        (1466, (1000, 1500, 2000, 30, False), 100, 0.0),  # -0.85 %: not negative (truncated towards zero)
+        (1465, (1000, 1500, 2000, 30, False), 100, -0.01),
+        (1465, (1000, 1500, 2000, 30, True), 100, 0.01),
+        (1715, (1100, 1500, 1900, 30, False), 4500, 0.5),  # steering in 1/4500
+        (1716, (1100, 1500, 1900, 30, False), 4500, 2262 / 4500),  # 2262.16 truncated
+        (1000, (1000, 1500, 2000, 30, False), 100, -1.0),
+    ],
+)
+def test_ardupilot_keeps_what_it_reads_as_an_integer(pwm, calib, full_scale, expected) -> None:
+    """RC_Channel::control_in is an int16_t: throttle and lateral in whole percent, steering in 1/4500."""
+    assert scale_angle(pwm, *calib, full_scale) == pytest.approx(expected, abs=1e-12)
+
+
 def test_a_buoy_scales_throttle_with_its_rc3_calibration() -> None:
     v = _armed(RC3_MIN=1000, RC3_MAX=2000)
     thrust = _drive(v, {3: 1900})
-    assert thrust[0] == pytest.approx(10.0 * 370 / 470) and thrust[1] == 0.0
+    # 370 / 470 = 78.7 %, kept by ArduPilot as the int16 78 (RC_Channel::control_in): 78 % of 10 N
+    assert thrust[0] == pytest.approx(10.0 * 78 / 100) and thrust[1] == 0.0
     assert _drive(v, {3: 1520}, 0.1)[0] == 0.0, "dead zone"
 
 

@@ -11,10 +11,11 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.control.velocity_control import BuoyModel
-from bob_autonomy.onboard.autopilot import BUOY, EBOT, AutopilotProfile, AutopilotSession
+from bob_autonomy.onboard.autopilot import BUOY, EBOT, MOTORBOAT, AutopilotProfile, AutopilotSession
 from bob_autonomy.onboard.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
 from firmware_bridge.commands import Encoder
-from firmware_bridge.rc_channels import RcChannelRange, RcMap
+from firmware_bridge.rc_channels import RcChannelRange, RcMap, ResolutionCarry
+from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 
 def _parse(data: bytes) -> list:
@@ -130,6 +131,40 @@ def test_steering_is_flipped_in_reverse_where_ardupilot_flips_it_back() -> None:
     keeps = _session(PILOT_STEER_TYPE=3, FRAME_CLASS=1, FRAME_TYPE=0)
     (msg,) = _parse(keeps.override(0.5, -0.5))
     assert keeps.profile.rc_map.range_of(1).value_of(msg.chan1_raw) == pytest.approx(0.5, abs=0.01)
+
+
+SITL_RC = {"RC1_MIN": 1000, "RC1_MAX": 2000, "RC3_MIN": 1000, "RC3_MAX": 2000}  # SITL's rover.parm
+
+
+@pytest.mark.parametrize("throttle", [-0.004, -0.0064, -0.009, -0.012, -0.3, 0.004, 0.0064, 0.3, -1.0])
+def test_a_small_astern_throttle_keeps_the_rudder_the_vessel_meant(throttle: float) -> None:
+    """ArduPilot keeps the throttle it reads as an integer percent, truncated (RC_Channel::control_in, int16_t), and
+    flips the steering in reverse only when that integer is negative (Rover/mode.cpp get_pilot_input). ArduPilot's
+    own SITL motorboat, sent -0.64 % (1467 us) with the steering negated, read 0 %, did not negate it back, steered
+    the other way and sat still for a whole leg. Through real bytes, the simulated autopilot (its own model of
+    control_in) applies the rudder the vessel meant and the throttle to the nearest whole percent."""
+    session = _session(MOTORBOAT, FRAME_CLASS=2, FRAME_TYPE=0, PILOT_STEER_TYPE=0, **SITL_RC)
+    vehicle = SimulatedVehicle(3, MOTORBOAT, 1.0, armed=True, params={"MOT_SLEWRATE": 0, **SITL_RC})
+    vehicle.receive(session.override(0.5, throttle), 0.0)
+    applied_throttle, rudder = vehicle.actuator(0.0)
+    assert rudder == pytest.approx(0.5, abs=1e-3)
+    assert applied_throttle == pytest.approx(math.copysign(math.floor(abs(throttle) * 100 + 0.5), throttle) / 100)
+
+
+def test_a_full_scale_unit_is_the_nearest_whole_unit_the_autopilot_reads() -> None:
+    """pwm_for(value, full_scale) is read back (control_in) as value x full_scale rounded to the nearest unit, on
+    every calibration, both ways, for throttle (100) and steering (4500: the nearer of the PWMs about it)."""
+    for calibration in (
+        RcChannelRange(),
+        RcChannelRange(1000, 1500, 2000, 30),
+        RcChannelRange(982, 1494, 2006, 10, reversed=True),
+    ):
+        for value in np.linspace(-1.0, 1.0, 801):
+            pwm = calibration.pwm_for(value, 100)
+            assert calibration.control_in(pwm, 100) == math.copysign(math.floor(abs(value) * 100 + 0.5), value)
+            steer = calibration.pwm_for(value, 4500)
+            best = min(abs(calibration.control_in(p, 4500) - value * 4500) for p in range(steer - 3, steer + 4))
+            assert abs(calibration.control_in(steer, 4500) - value * 4500) == best
 
 
 def test_lateral_stays_at_trim_on_a_frame_that_cannot_use_it() -> None:
@@ -416,3 +451,25 @@ def test_an_ebot_without_wheel_readings_follows_a_moving_gps_fix() -> None:
         pipeline.feed([GpsFix(np.array([0]), np.array([t]), np.array([lat]), np.array([lon]))])
         errors.append(abs(pipeline.estimate(t).position[0, 0] - 1.5 * t))
     assert np.median(errors[20:]) < 1.0
+
+
+def test_a_wish_finer_than_a_percent_is_met_on_average() -> None:
+    """ResolutionCarry (error diffusion over whole percent): a steady 0.3 % is 1 % in 3 overrides of 10, where
+    rounding alone sends nothing; each value sent is a whole percent; a stop sends 0 and forgets what was owed;
+    beyond full scale nothing winds up."""
+    carry = ResolutionCarry()
+    sent = [carry("throttle", 0.003) for _ in range(1000)]
+    assert all(round(v * 100) == v * 100 for v in sent) and set(sent) == {0.0, 0.01}
+    assert np.mean(sent) == pytest.approx(0.003, abs=1e-5)
+    assert np.mean([carry("lateral", -0.0449) for _ in range(1000)]) == pytest.approx(-0.0449, abs=1e-5)
+    assert carry("throttle", 0.0) == 0.0 and carry("throttle", 0.003) == 0.0  # nothing owed after a stop
+    saturated = [carry("throttle", 5.0) for _ in range(50)]
+    assert set(saturated) == {1.0} and carry("throttle", 0.5) == 0.5  # owed at most half a unit
+    session = _session(MOTORBOAT, FRAME_CLASS=2, FRAME_TYPE=0, **SITL_RC)
+    vehicle = SimulatedVehicle(3, MOTORBOAT, 1.0, armed=True, params={"MOT_SLEWRATE": 0, **SITL_RC})
+    applied = []
+    for k in range(200):  # through real bytes: the autopilot applies 0.4 % astern on average, and the rudder meant
+        vehicle.receive(session.override(0.5, -0.004), 0.1 * k)
+        applied.append(vehicle.actuator(0.1 * k))
+    throttle, rudder = np.array(applied).T
+    assert np.mean(throttle) == pytest.approx(-0.004, abs=1e-4) and np.allclose(rudder, 0.5, atol=1e-3)

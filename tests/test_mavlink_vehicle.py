@@ -47,16 +47,21 @@ def test_yaw_convention() -> None:
     assert yaw_from_heading(math.pi) == pytest.approx(-math.pi / 2)  # west
 
 
+# A command reaches ArduPilot as the nearest whole percent (RC_Channel::control_in), sent as the first PWM read as
+# that: within half a percent and one PWM step (1/370 of the range past the dead zone) of what was meant.
+RESOLUTION = 0.005 + 1 / 370
+
+
 @pytest.mark.parametrize("thrust", [(45.0, 0.0), (-10.0, 20.0), (0.0, -45.0), (3.3, 4.4)])
-def test_rc_thrust_round_trip_within_one_pwm_step(thrust) -> None:
+def test_rc_thrust_round_trip_within_the_autopilots_resolution(thrust) -> None:
     msg = mavlink.MAVLink(None).decode(bytearray(commands.rc_override_for_thrust(thrust, 45.0)))
-    np.testing.assert_allclose(commands.thrust_from_rc(msg, 45.0), thrust, atol=45.0 / 400)
+    np.testing.assert_allclose(commands.thrust_from_rc(msg, 45.0), thrust, atol=45.0 * RESOLUTION)
 
 
 @pytest.mark.parametrize("wheels", [(0.2, 0.2), (-0.1, 0.15), (0.2, -0.2), (0.0, 0.05)])
-def test_rc_wheels_round_trip_within_one_pwm_step(wheels) -> None:
+def test_rc_wheels_round_trip_within_the_autopilots_resolution(wheels) -> None:
     msg = mavlink.MAVLink(None).decode(bytearray(commands.rc_override_for_wheels(*wheels, 0.2)))
-    np.testing.assert_allclose(commands.wheels_from_rc(msg, 0.2), wheels, atol=2 * 0.2 / 400)
+    np.testing.assert_allclose(commands.wheels_from_rc(msg, 0.2), wheels, atol=2 * 0.2 * RESOLUTION)
 
 
 # No throttle slew, so that a command applies at once (MOT_SLEWRATE is tested in tests/test_autopilot_rc.py);
@@ -103,11 +108,11 @@ def test_hold_mode_stops_and_unsimulated_modes_are_refused() -> None:
 def test_failsafe_stops_the_thruster_when_commands_stop() -> None:
     v = _vehicle(armed=True)
     v.receive(commands.rc_override_for_thrust((30.0, 0.0), 45.0, target_system=2), 10.0)
-    np.testing.assert_allclose(v.actuator(10.9), (30.0, 0.0), atol=45.0 / 400)
+    np.testing.assert_allclose(v.actuator(10.9), (30.0, 0.0), atol=45.0 * RESOLUTION)
     assert not v.actuator(11.1).any() and v.counters.failsafes == 1
     assert not v.actuator(15.0).any() and v.counters.failsafes == 1  # one lapse, counted once
     v.receive(commands.rc_override_for_thrust((10.0, 0.0), 45.0, target_system=2), 16.0)
-    np.testing.assert_allclose(v.actuator(16.1), (10.0, 0.0), atol=45.0 / 400)
+    np.testing.assert_allclose(v.actuator(16.1), (10.0, 0.0), atol=45.0 * RESOLUTION)
 
 
 def test_garbage_is_counted_never_raised() -> None:

@@ -14,7 +14,8 @@ Facts from ArduPilot's source behind each choice:
   frames, FRAME_TYPE 1-4 (libraries/AR_Motors/AP_MotorsUGV.h `is_omni`).
 - With PILOT_STEER_TYPE 0 (default) or 2 the steering input is negated while
   the throttle is negative (Rover/mode.cpp `get_pilot_input`); 1 (two paddles)
-  reads the channels as paddles.
+  reads the channels as paddles. "Negative" is the integer the autopilot reads
+  (whole percent, truncated: RC_Channel::control_in), so -0.6 % is not.
 - Top speed: SPEED_MAX, or when 0 CRUISE_SPEED / CRUISE_THROTTLE % (Rover/Parameters.cpp).
 - Turning radius: TURN_RADIUS, m (Rover/Parameters.cpp, 0.9 m by default), what a motorboat's controller plans with.
 - Frames and kinds: a buoy (thrust in any direction: throttle + lateral) needs an omni frame; a motorboat
@@ -40,7 +41,7 @@ from firmware_bridge.autopilot_requests import (
     set_message_interval,
 )
 from firmware_bridge.commands import ROVER_MODES, Encoder, rc_override
-from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap
+from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap, ResolutionCarry
 
 BUOY, EBOT, MOTORBOAT = "buoy", "ebot", "motorboat"
 OMNI_FRAME_TYPES = {1: "omni3", 2: "omniX", 3: "omniPlus", 4: "omni3mecanum"}
@@ -292,6 +293,7 @@ class AutopilotSession:
         if estimator != "ekf":
             self.streams.pop(mavlink.MAVLINK_MSG_ID_SCALED_IMU, None)
         self.profile = AutopilotProfile()
+        self.carry = ResolutionCarry()  # throttle and lateral finer than whole percent, spread over overrides
         self.params: dict[str, float] = {}
         self.acks: deque = deque(maxlen=64)  # (t, command, result)
         self.texts: deque = deque(maxlen=32)  # (t, severity, text)
@@ -449,15 +451,18 @@ class AutopilotSession:
     def override(self, steering: float, throttle: float, lateral: float | None = None) -> bytes:
         """RC_CHANNELS_OVERRIDE for normalised steering (positive = turn right), throttle (positive = forward) and
         lateral (positive = right), each in [-1, 1] (non-finite -> neutral), through the autopilot's RC map and
-        calibration; the steering sign is flipped in reverse where the autopilot flips it back."""
+        calibration, throttle and lateral in the whole percent the autopilot reads (finer commands spread over
+        successive overrides: `ResolutionCarry`); the steering sign is flipped where the autopilot will read the
+        throttle as negative and flip it back."""
         steer = float(steering) if math.isfinite(steering) else 0.0
-        thr = float(throttle) if math.isfinite(throttle) else 0.0
-        if self.profile.steering_flips_in_reverse and thr < 0:
-            steer = -steer
+        thr = self.carry("throttle", float(throttle) if math.isfinite(throttle) else 0.0)
         lat = None if lateral is None or not math.isfinite(lateral) else float(lateral)
         if not self.profile.lateral_capable and self.profile.known:
             lat = None
-        channels = self.profile.rc_map.channels_for(steer, thr, lat)
+        if lat is not None:
+            lat = self.carry("lateral", lat)
+        flip = self.profile.steering_flips_in_reverse
+        channels = self.profile.rc_map.channels_for(steer, thr, lat, flip_in_reverse=flip)
         self.sent.append((float(self.clock()), channels))
         return rc_override(channels, self.target_system, mavlink.MAV_COMP_ID_AUTOPILOT1, encoder=self.encoder)
 

@@ -17,6 +17,7 @@ from bob_autonomy.core.arrays import finite_pair
 from firmware_bridge.batch_decoder import Columns, decode_batch
 from firmware_bridge.commands import Encoder, command_long_arm, rc_override_for_thrust, rc_override_for_wheels, set_mode
 from firmware_bridge.decoder import Battery, CommandAck, Heartbeat, HeartbeatWatch, Reading, TelemetryDecoder
+from firmware_bridge.rc_channels import ResolutionCarry
 
 BUOY, EBOT = "buoy", "ebot"
 AUTOPILOT_COMPONENT = 1  # MAV_COMP_ID_AUTOPILOT1: the only component whose telemetry moves the estimate
@@ -57,6 +58,7 @@ class VehicleLink:
         self.last_heartbeat: Heartbeat | None = None
         self.battery: Battery | None = None
         self.acks: list[CommandAck] = []
+        self.carry = ResolutionCarry()  # commands finer than the autopilot's whole percent, spread over overrides
 
     def receive(self, data: bytes) -> list[Reading]:
         """Decode bytes from the vehicle; returns the sensor readings (GPS, compass, IMU, wheels) among them."""
@@ -87,10 +89,12 @@ class VehicleLink:
 
     def command(self, actuator: np.ndarray) -> bytes:
         """RC_CHANNELS_OVERRIDE for a thrust (x forward, y left; N) or wheel speeds (left, right; m/s)."""
-        a = finite_pair(actuator)
+        a, carry = finite_pair(actuator), self.carry
         if self.kind == BUOY:
-            return rc_override_for_thrust(a, self.max_actuator, self.target_system, encoder=self.encoder)
-        return rc_override_for_wheels(a[0], a[1], self.max_actuator, self.target_system, encoder=self.encoder)
+            return rc_override_for_thrust(a, self.max_actuator, self.target_system, encoder=self.encoder, carry=carry)
+        return rc_override_for_wheels(
+            a[0], a[1], self.max_actuator, self.target_system, encoder=self.encoder, carry=carry
+        )
 
     def stop(self) -> bytes:
         """A neutral command: thrusters or wheels at zero."""

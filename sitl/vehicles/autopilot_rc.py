@@ -9,7 +9,8 @@ and the motor mixing, as ArduPilot Rover does them.
   returns early), and RC_Channels::read_input reports new input only when an override arrives.
 - Steering (RCMAP_ROLL), throttle (RCMAP_THROTTLE) and lateral (RCMAP_YAW) are "angle" inputs (Rover/radio.cpp
   `set_control_channels`) scaled about RCx_TRIM with the dead zone RCx_DZ by `pwm_to_angle_dz_trim`
-  (RC_Channel.cpp), reversed by RCx_REVERSED.
+  (RC_Channel.cpp), reversed by RCx_REVERSED, and kept as an int16 (`control_in`): throttle and lateral in whole
+  percent, steering in 1/4500, truncated towards zero.
 - Pilot input (Rover/mode.cpp `get_pilot_input`, `get_pilot_desired_steering_and_throttle`): zero under radio
   failsafe; PILOT_STEER_TYPE 0 (default) and 2 flip steering when throttle is negative, 3 does not, 1 reads two
   paddles; skid-steer and omni frames scale steering and throttle back together when |s| + |t| > 1; throttle is
@@ -35,16 +36,28 @@ OMNI_FACTORS = {
 }
 
 
-def scale_angle(pwm: int, low: int, trim: int, high: int, dead_zone: int, reversed_: bool) -> float:
-    """An RC PWM as ArduPilot's angle input in [-1, 1] (RC_Channel::pwm_to_angle_dz_trim divided by its range)."""
+def scale_angle(
+    pwm: int, low: int, trim: int, high: int, dead_zone: int, reversed_: bool, full_scale: int | None = None
+) -> float:
+    """An RC PWM as ArduPilot's angle input in [-1, 1] (RC_Channel::pwm_to_angle_dz_trim divided by its range).
+
+    full_scale: the channel's angle (100 for throttle and lateral, 4500 for steering: Rover/radio.cpp
+    set_control_channels); the value is then the int16 control_in ArduPilot keeps, truncated towards zero, in
+    units of 1 / full_scale: a throttle under 1 % reads 0. None: the exact fraction.
+    """
     r = min(high, max(low, int(pwm)))
     top, bottom = trim + dead_zone, trim - dead_zone
     sign = -1.0 if reversed_ else 1.0
     if r > top and high != top:
-        return sign * (r - top) / (high - top)
-    if r < bottom and bottom != low:
-        return sign * (r - bottom) / (bottom - low)
-    return 0.0
+        above, span = r - top, high - top
+    elif r < bottom and bottom != low:
+        above, span = r - bottom, bottom - low
+    else:
+        return 0.0
+    if full_scale is None:
+        return sign * above / span
+    units = abs(above) * full_scale // span  # (float) high_in * delta / span, then int16: truncated towards zero
+    return sign * math.copysign(units, above) / full_scale
 
 
 def norm_input_dz(pwm: int, low: int, trim: int, high: int, dead_zone: int, reversed_: bool) -> float:

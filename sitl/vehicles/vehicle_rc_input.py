@@ -20,6 +20,9 @@ from sitl.vehicles.vehicle_defs import (
     OVERRIDE_FIELDS,
 )
 
+# The angle of each role's channel (Rover/radio.cpp set_control_channels: steering SERVO_MAX, throttle and lateral
+# 100): ArduPilot keeps what it reads as an integer in these units (autopilot_rc.scale_angle).
+ANGLE_FULL_SCALE = {"steer": 4500, "throttle": 100, "lateral": 100}
 # What an override channel may carry: a PWM of 800-2200 us, or 0 / UINT16_MAX-1 / UINT16_MAX (release, ignore).
 _VALID_OVERRIDE = frozenset(range(800, 2201)) | {0, 65534, 65535}
 
@@ -100,7 +103,7 @@ class RcInputHandling:
         pwm = self.rc.radio_in[ch - 1]
         if pwm == 0:
             return 0.0
-        return norm_input_dz(pwm, *calib) if paddle else scale_angle(pwm, *calib)
+        return norm_input_dz(pwm, *calib) if paddle else scale_angle(pwm, *calib, ANGLE_FULL_SCALE[role])
 
     def _read_pilot(self) -> tuple[float, float, float]:
         """(steering, throttle, lateral) from RC inputs 1-8 (the RCMAP roles are among them) and the parameters;

@@ -19,7 +19,8 @@ import numpy as np
 from bob_autonomy.onboard.autopilot import AutopilotSession
 from bob_autonomy.onboard.senses import EbotSenses
 from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink, receive_all
-from firmware_bridge.commands import normalised_to_pwm, rc_override
+from firmware_bridge.commands import rc_override
+from firmware_bridge.rc_channels import RcMap, ResolutionCarry
 from firmware_bridge.readings import SensorReadings
 from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
 from sitl.vehicles.reading_batches import merge_by_round
@@ -40,12 +41,19 @@ class DirectTransport:
         return {}
 
 
-def motorboat_override(throttle: float, steering: float, target_system: int, encoder) -> bytes:
+DEFAULT_RC_MAP = RcMap()  # ArduPilot's default RC map and calibration, Rover's dead zone
+
+
+def motorboat_override(
+    throttle: float, steering: float, target_system: int, encoder, carry: ResolutionCarry | None = None
+) -> bytes:
     """A motorboat's throttle and steering (each in [-1, 1]) as the vessel sends them (AutopilotSession.override
     at ArduPilot's default RC calibration): steering on channel 1, throttle on 3, lateral at TRIM, the steering
-    negated in reverse because the autopilot negates it back (Rover/mode.cpp get_pilot_input, PILOT_STEER_TYPE 0)."""
-    steer = -steering if throttle < 0 else steering
-    channels = {1: normalised_to_pwm(steer), 3: normalised_to_pwm(throttle), 4: normalised_to_pwm(0.0)}
+    negated where the autopilot reads the throttle as negative, because it negates it back (Rover/mode.cpp
+    get_pilot_input, PILOT_STEER_TYPE 0). carry: the throttle's error diffusion over whole percent."""
+    if carry is not None:
+        throttle = carry(DEFAULT_RC_MAP.throttle, throttle)
+    channels = DEFAULT_RC_MAP.channels_for(steering, throttle, 0.0, flip_in_reverse=True)
     return rc_override(channels, target_system, 1, encoder=encoder)
 
 
@@ -100,7 +108,7 @@ class MavlinkTransport:
         applied = np.zeros((len(self.vehicles), 2))
         for k, (link, vehicle) in enumerate(zip(self.links, self.vehicles, strict=True)):
             if self.kind == MOTORBOAT:
-                data = motorboat_override(commands[k, 0], commands[k, 1], link.target_system, link.encoder)
+                data = motorboat_override(commands[k, 0], commands[k, 1], link.target_system, link.encoder, link.carry)
             else:
                 data = link.command(commands[k])
             replies = vehicle.receive(data, t_s)
