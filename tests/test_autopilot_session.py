@@ -124,13 +124,22 @@ def test_override_goes_to_the_mapped_channels_from_the_gcs_id() -> None:
     assert msg.chan2_raw == 65535  # untouched channels are left to the receiver
 
 
-def test_steering_is_flipped_in_reverse_where_ardupilot_flips_it_back() -> None:
-    flips = _session(PILOT_STEER_TYPE=0, FRAME_CLASS=1, FRAME_TYPE=0)
-    (msg,) = _parse(flips.override(0.5, -0.5))
-    assert flips.profile.rc_map.range_of(1).value_of(msg.chan1_raw) == pytest.approx(-0.5, abs=0.01)
-    keeps = _session(PILOT_STEER_TYPE=3, FRAME_CLASS=1, FRAME_TYPE=0)
-    (msg,) = _parse(keeps.override(0.5, -0.5))
-    assert keeps.profile.rc_map.range_of(1).value_of(msg.chan1_raw) == pytest.approx(0.5, abs=0.01)
+@pytest.mark.parametrize(
+    ("frame", "steer_type", "sent"),
+    [
+        ({"FRAME_TYPE": 0}, 0, 0.5),  # steering output: get_pilot_input and output_regular both flip it
+        ({"FRAME_TYPE": 0}, 2, 0.5),
+        ({"FRAME_TYPE": 0}, 3, -0.5),  # output_regular alone flips it
+        ({"FRAME_TYPE": 0, "SERVO1_FUNCTION": 73, "SERVO3_FUNCTION": 74}, 0, -0.5),  # skid-steer: the first alone
+        ({"FRAME_TYPE": 0, "SERVO1_FUNCTION": 73, "SERVO3_FUNCTION": 74}, 3, 0.5),
+        ({"FRAME_TYPE": 1}, 0, -0.5),  # omni: get_pilot_input alone
+    ],
+)
+def test_steering_is_flipped_in_reverse_where_ardupilot_flips_it_once(frame: dict, steer_type: int, sent: float):
+    """Astern (throttle -50 %), a steering of 0.5 is sent so that the frame's steering comes out as 0.5."""
+    session = _session(MOTORBOAT, PILOT_STEER_TYPE=steer_type, FRAME_CLASS=2, **frame)
+    (msg,) = _parse(session.override(0.5, -0.5))
+    assert session.profile.rc_map.range_of(1).value_of(msg.chan1_raw) == pytest.approx(sent, abs=0.01)
 
 
 SITL_RC = {"RC1_MIN": 1000, "RC1_MAX": 2000, "RC3_MIN": 1000, "RC3_MAX": 2000}  # SITL's rover.parm

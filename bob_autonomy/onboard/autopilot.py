@@ -15,7 +15,9 @@ Facts from ArduPilot's source behind each choice:
 - With PILOT_STEER_TYPE 0 (default) or 2 the steering input is negated while
   the throttle is negative (Rover/mode.cpp `get_pilot_input`); 1 (two paddles)
   reads the channels as paddles. "Negative" is the integer the autopilot reads
-  (whole percent, truncated: RC_Channel::control_in), so -0.6 % is not.
+  (whole percent, truncated: RC_Channel::control_in), so -0.6 % is not. A frame
+  with a steering output (not skid-steer, not omni) negates it once more
+  (AP_MotorsUGV::output_regular), so its rudder follows the stick in MANUAL.
 - Top speed: SPEED_MAX, or when 0 CRUISE_SPEED / CRUISE_THROTTLE % (Rover/Parameters.cpp).
 - Turning radius: TURN_RADIUS, m (Rover/Parameters.cpp, 0.9 m by default), what a motorboat's controller plans with.
 - Frames and kinds: a buoy (thrust in any direction: throttle + lateral) needs an omni frame; a motorboat
@@ -68,7 +70,10 @@ CORE_PARAMS = (
     "MOT_VEC_ANGLEMAX",
     "WENC_TYPE",
     "TURN_RADIUS",
+    "SERVO1_FUNCTION",
+    "SERVO3_FUNCTION",
 )
+SKID_STEER_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
 RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
 
 # Messages the estimators need and the rates asked for (Hz), with the slowest rate still usable. ArduPilot
@@ -165,8 +170,23 @@ class AutopilotProfile:
         return 3.0 if v is None or not math.isfinite(v) else float(v)
 
     @property
+    def skid_steering(self) -> bool:
+        """Throttle left / right on the usual outputs (SERVO1_FUNCTION, SERVO3_FUNCTION 73 / 74)."""
+        return any(_int(self.values, f"SERVO{n}_FUNCTION", 0) in SKID_STEER_FUNCTIONS for n in (1, 3))
+
+    @property
     def steering_flips_in_reverse(self) -> bool:
-        return _int(self.values, "PILOT_STEER_TYPE", 0) in (0, 2)
+        """Whether, in MANUAL, what the steering stick does is turned the other way while the autopilot reads the
+        throttle as negative. Rover/mode.cpp get_pilot_input flips the stick for PILOT_STEER_TYPE 0 and 2; a frame
+        with a steering output (neither skid-steer nor omni: a motorboat's rudder or drive) flips it back in
+        AP_MotorsUGV::output_regular ("reverse steering direction when backing up"), so there the rudder follows
+        the stick with 0 and 2 and is flipped with 3. ArduPilot's SITL motorboat put its rudder on the other side
+        astern when we assumed the first flip alone (tests/ardupilot/test_real_rc_resolution.py)."""
+        steer_type = _int(self.values, "PILOT_STEER_TYPE", 0)
+        if steer_type == 1:  # two paddles: not driven by this process
+            return False
+        regular = not self.lateral_capable and not self.skid_steering
+        return (steer_type in (0, 2)) != regular
 
     @property
     def top_speed_mps(self) -> float | None:

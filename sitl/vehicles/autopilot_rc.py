@@ -17,6 +17,9 @@ and the motor mixing, as ArduPilot Rover does them.
   slew-limited by MOT_SLEWRATE %/s (libraries/AR_Motors/AP_MotorsUGV.cpp `get_slew_limited_throttle`), and the
   steering flips again if the limited throttle has the other sign.
 - Lateral moves only an omni frame (FRAME_TYPE != 0, AP_MotorsUGV::is_omni, `output_omni`).
+- A frame with a steering output (a motorboat's) turns it the other way while the motor throttle is negative
+  (AP_MotorsUGV::output_regular, MANUAL without speed scaling), so with PILOT_STEER_TYPE 0 its rudder follows the
+  stick astern too.
 """
 
 from __future__ import annotations

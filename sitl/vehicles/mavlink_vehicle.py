@@ -388,7 +388,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
 
     def _servo_pwms(self, out: PilotOutput) -> list[int]:
         functions = [self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)]
-        values = {26: out.steering, 70: out.throttle}
+        values = {26: self._steering_output(out), 70: out.throttle}
         values[73], values[74] = skid_outputs(out)
         for k, v in enumerate(omni_motor_outputs(self.params.get_int("FRAME_TYPE"), out)):
             values[33 + k] = v

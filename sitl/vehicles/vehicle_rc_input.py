@@ -116,11 +116,18 @@ class RcInputHandling:
             self._pilot_cache = (key, (steering, throttle, lateral))
         return self._pilot_cache[1]
 
+    def _steering_output(self, out: PilotOutput) -> float:
+        """The steering output (SERVOn_FUNCTION 26) for motor demands `out`: a frame that steers with it (neither
+        skid-steer nor omni) turns it the other way when backing up (AP_MotorsUGV::output_regular, MANUAL
+        without speed scaling)."""
+        regular = not self.skid_steer() and not self.omni()
+        return -out.steering if regular and out.throttle < 0 else out.steering
+
     def _demand(self, out: PilotOutput) -> np.ndarray:
         """The actuator vector (N thrust x, y body; m/s wheels left, right; or a motorboat's throttle and ground
         steering outputs, each in [-1, 1], steering > 0 to starboard) for motor demands `out`."""
         if self.kind == MOTORBOAT:
-            return np.array([out.throttle, out.steering])
+            return np.array([out.throttle, self._steering_output(out)])
         if self.kind == BUOY:
             return np.array([out.throttle * self.max_actuator, -out.lateral * self.max_actuator])
         left, right = skid_outputs(out)

@@ -48,12 +48,13 @@ def motorboat_override(
     throttle: float, steering: float, target_system: int, encoder, carry: ResolutionCarry | None = None
 ) -> bytes:
     """A motorboat's throttle and steering (each in [-1, 1]) as the vessel sends them (AutopilotSession.override
-    at ArduPilot's default RC calibration): steering on channel 1, throttle on 3, lateral at TRIM, the steering
-    negated where the autopilot reads the throttle as negative, because it negates it back (Rover/mode.cpp
-    get_pilot_input, PILOT_STEER_TYPE 0). carry: the throttle's error diffusion over whole percent."""
+    at ArduPilot's default RC calibration): steering on channel 1, throttle on 3, lateral at TRIM; the steering as
+    it is, because on a motorboat frame the autopilot negates it twice in reverse (Rover/mode.cpp get_pilot_input
+    with PILOT_STEER_TYPE 0, AP_MotorsUGV::output_regular: AutopilotProfile.steering_flips_in_reverse). carry:
+    the throttle's error diffusion over whole percent."""
     if carry is not None:
         throttle = carry(DEFAULT_RC_MAP.throttle, throttle)
-    channels = DEFAULT_RC_MAP.channels_for(steering, throttle, 0.0, flip_in_reverse=True)
+    channels = DEFAULT_RC_MAP.channels_for(steering, throttle, 0.0)
     return rc_override(channels, target_system, 1, encoder=encoder)
 
 

@@ -76,6 +76,7 @@ class Observation:
 
     positions: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, lat, lon, hdg deg)
     rc: list[tuple[float, list[int]]] = field(default_factory=list)  # (t, chan1..8)
+    servos: list[tuple[float, list[int]]] = field(default_factory=list)  # (t, servo1..8 outputs, us)
     modes: list[tuple[float, int, bool]] = field(default_factory=list)  # (t, custom_mode, armed)
     texts: list[str] = field(default_factory=list)
 
@@ -152,6 +153,8 @@ class RoverSitl:
                 self.seen.positions.append((t, msg.lat * 1e-7, msg.lon * 1e-7, msg.hdg / 100.0))
             elif name == "RC_CHANNELS":
                 self.seen.rc.append((t, [getattr(msg, f"chan{c}_raw") for c in range(1, 9)]))
+            elif name == "SERVO_OUTPUT_RAW":
+                self.seen.servos.append((t, [getattr(msg, f"servo{c}_raw") for c in range(1, 9)]))
             elif name == "HEARTBEAT" and msg.get_srcComponent() == 1:
                 armed = bool(msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
                 self.seen.modes.append((t, msg.custom_mode, armed))

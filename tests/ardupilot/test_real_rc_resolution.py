@@ -1,0 +1,79 @@
+"""ArduPilot reads an RC input as an integer (RC_Channel::control_in, int16_t: whole percent of throttle); in reverse
+it flips the steering stick (Rover/mode.cpp get_pilot_input, PILOT_STEER_TYPE 0, when that integer is negative)
+and flips the steering output back (AP_MotorsUGV::output_regular, a frame with a steering output). Against
+ArduPilot's own SITL motorboat: the rudder it puts out (SERVO1, ground steering) for our overrides is on the side
+the vessel meant, ahead, 5 % astern and 0.4 % astern. Before, the vessel pre-flipped the steering for any
+negative wish, which put the rudder on the other side at 5 % astern (and at 0.4 %, read as 0, on the side meant
+except on the overrides that carried -1 %) (docs/ardupilot.md).
+
+Skipped unless ARDUPILOT_SITL names a built `ardurover`. Judged by SERVO_OUTPUT_RAW on the autopilot's SERIAL1.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from pymavlink import mavutil
+from sitl_harness import RoverSitl, sitl_binary
+
+from bob_autonomy.onboard.autopilot import MOTORBOAT, AutopilotSession
+from firmware_bridge.commands import Encoder
+
+BINARY = sitl_binary()
+pytestmark = [
+    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
+    pytest.mark.xdist_group("realtime"),
+]
+PARAMS = ["FRAME_CLASS", "FRAME_TYPE", "PILOT_STEER_TYPE", "MAV_GCS_SYSID", "RCMAP_ROLL", "RCMAP_THROTTLE"]
+PARAMS += [f"RC{ch}_{what}" for ch in (1, 3) for what in ("MIN", "TRIM", "MAX", "DZ", "REVERSED")]
+
+
+def _read_params(link, names: list[str], timeout_s: float = 20.0) -> dict[str, float]:
+    values: dict[str, float] = {}
+    deadline = time.monotonic() + timeout_s
+    for name in names:
+        while name not in values and time.monotonic() < deadline:
+            link.mav.param_request_read_send(1, 1, name.encode(), -1)
+            msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+            if msg is not None:
+                values[msg.param_id] = msg.param_value
+    missing = [n for n in names if n not in values]
+    assert not missing, f"the autopilot did not answer for {missing}"
+    return values
+
+
+def _rudder_outputs(sitl: RoverSitl, link, session: AutopilotSession, throttle: float, seconds: float) -> list[int]:
+    """SERVO1 (us) while overrides of steering 0.5 (to starboard) and `throttle` go out at 10 Hz, after 1 s."""
+    start = time.monotonic()
+    while time.monotonic() - start < seconds:
+        link.write(session.override(0.5, throttle))
+        time.sleep(0.1)
+    return [servos[0] for t, servos in sitl.seen.servos if t > start + 1.0]
+
+
+def test_the_rudder_is_on_the_side_meant_ahead_astern_and_under_a_percent_astern(tmp_path) -> None:
+    with RoverSitl(BINARY, "motorboat", tmp_path) as sitl:
+        sitl.wait_initialised()
+        link = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.serial0}", source_system=255, source_component=190)
+        session = AutopilotSession(1, MOTORBOAT, Encoder(), clock=time.monotonic)
+        session.params.update(_read_params(link, PARAMS))
+        session.learn()
+        # PILOT_STEER_TYPE 0 on a frame with a steering output: flipped by get_pilot_input, back by output_regular
+        assert session.params["PILOT_STEER_TYPE"] == 0 and not session.profile.steering_flips_in_reverse
+        link.write(session.set_mode("MANUAL"))
+        deadline = time.monotonic() + 30
+        while not (sitl.seen.modes and sitl.seen.modes[-1][2]) and time.monotonic() < deadline:
+            link.write(session.arm(force=True))
+            time.sleep(1.0)
+        assert sitl.seen.modes and sitl.seen.modes[-1][2], f"not armed: {sitl.seen.texts[-5:]}"
+        sides = {}
+        for throttle in (0.05, -0.05, -0.004):  # ahead; 5 % astern; 0.4 % astern (0, or -1 % now and then)
+            session.carry = type(session.carry)()
+            rudder = _rudder_outputs(sitl, link, session, throttle, 3.0)
+            assert len(rudder) >= 5, "no SERVO_OUTPUT_RAW from the autopilot"
+            sides[throttle] = {(r > 1500) - (r < 1500) for r in rudder}
+        link.write(session.override(0.0, 0.0))
+        ahead = sides[0.05]
+        assert len(ahead) == 1 and ahead != {0}, sides
+        assert sides[-0.05] == ahead and sides[-0.004] == ahead, sides
