@@ -21,7 +21,8 @@ int16_t, the float above truncated towards zero) in units of the channel's
 angle: throttle and lateral in whole percent (`set_angle(100)`), steering in
 1/4500 (`set_angle(SERVO_MAX)`). So a throttle under 1 % is read as 0, and a
 small astern throttle is not "negative" to the steering flip of
-PILOT_STEER_TYPE 0 (Rover/mode.cpp `get_pilot_input` tests the integer).
+PILOT_STEER_TYPE 0 (Rover/mode.cpp `get_pilot_input` tests the integer; a frame
+with a steering output flips it back, AP_MotorsUGV::output_regular).
 `control_in` gives that integer, `pwm_for(value, full_scale)` the PWM read as the
 nearest whole unit, and `RcMap.channels_for` flips the steering only when the
 autopilot will read the throttle as negative. `ResolutionCarry` spreads a
@@ -180,9 +181,10 @@ class RcMap:
     ) -> dict[int, int]:
         """{channel: PWM} for normalised steering (positive = turn right), throttle (positive = forward) and
         lateral (positive = right; None leaves the lateral channel at its TRIM), each the nearest the autopilot
-        can read (whole percent; steering in 1/4500). flip_in_reverse (PILOT_STEER_TYPE 0 or 2): the steering
-        is sent negated when the autopilot will read the throttle as negative, as it negates it back then; a
-        throttle under half a percent astern is read as 0 and the steering goes as it is."""
+        can read (whole percent; steering in 1/4500). flip_in_reverse (where the autopilot negates the steering
+        once in reverse: `bob_autonomy.onboard.autopilot.AutopilotProfile.steering_flips_in_reverse`): the
+        steering is sent negated when the autopilot will read the throttle as negative, so that it comes out as
+        meant; a throttle under half a percent astern is read as 0 and the steering goes as it is."""
         throttle_range = self.range_of(self.throttle)
         throttle_pwm = throttle_range.pwm_for(throttle, THROTTLE_FULL_SCALE)
         if flip_in_reverse and throttle_range.control_in(throttle_pwm, THROTTLE_FULL_SCALE) < 0:
