@@ -41,6 +41,11 @@ STEERING_FULL_SCALE = 4500  # Rover/radio.cpp set_control_channels: steering set
 THROTTLE_FULL_SCALE = 100  # throttle and lateral set_angle(100): the autopilot reads them in whole percent
 
 
+def _nearest_whole(x: float) -> int:
+    """x rounded to the nearest integer, halves away from zero (Python's round() takes halves to even)."""
+    return int(math.copysign(math.floor(abs(x) + 0.5), x))
+
+
 @dataclass(frozen=True)
 class RcChannelRange:
     """One RC input's calibration as the autopilot holds it: RCn_MIN, RCn_TRIM, RCn_MAX, RCn_DZ (us), RCn_REVERSED."""
@@ -80,7 +85,7 @@ class RcChannelRange:
                 return min(self.max_us, math.ceil(high + u * (self.max_us - high)))
             return max(self.min_us, math.floor(low + u * (low - self.min_us)))
         target = u * full_scale
-        units = int(math.copysign(math.floor(abs(target) + 0.5), target))
+        units = _nearest_whole(target)
         if units == 0:
             return self.trim_us
         edge, span, sign = (high, self.max_us - high, 1) if units > 0 else (low, low - self.min_us, -1)
@@ -140,7 +145,7 @@ class ResolutionCarry:
             self._owed.pop(channel, None)
             return 0.0
         target = min(1.0, max(-1.0, u)) * full_scale + self._owed.get(channel, 0.0)
-        units = min(full_scale, max(-full_scale, int(math.copysign(math.floor(abs(target) + 0.5), target))))
+        units = min(full_scale, max(-full_scale, _nearest_whole(target)))
         self._owed[channel] = min(0.5, max(-0.5, target - units))
         return units / full_scale
 
