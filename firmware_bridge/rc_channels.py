@@ -41,6 +41,19 @@ STEERING_FULL_SCALE = 4500  # Rover/radio.cpp set_control_channels: steering set
 THROTTLE_FULL_SCALE = 100  # throttle and lateral set_angle(100): the autopilot reads them in whole percent
 
 
+EXPO_OFF_FROM = 0.95  # an expo this high or higher leaves the stick as it is (AP_Math input_expo)
+
+
+def before_expo(value: float, expo: float) -> float:
+    """The stick position x in [-1, 1] that an autopilot shaping its input as y = (1 - e) x / (1 - e |x|) (ArduPilot
+    Rover's MANUAL_STR_EXPO, AP_Math input_expo) turns into `value`: x = y / (1 - e + e |y|), the exact inverse
+    for e < 0.95 (e may be negative down to -0.5: softer at the centre); at e >= 0.95 the input goes unshaped."""
+    y = min(1.0, max(-1.0, value))
+    if not math.isfinite(expo) or expo == 0.0 or expo >= EXPO_OFF_FROM:
+        return y
+    return y / (1.0 - expo + expo * abs(y))
+
+
 def _nearest_whole(x: float) -> int:
     """x rounded to the nearest integer, halves away from zero (Python's round() takes halves to even)."""
     return int(math.copysign(math.floor(abs(x) + 0.5), x))

@@ -133,6 +133,9 @@ def test_override_goes_to_the_mapped_channels_from_the_gcs_id() -> None:
         ({"FRAME_TYPE": 0, "SERVO1_FUNCTION": 73, "SERVO3_FUNCTION": 74}, 0, -0.5),  # skid-steer: the first alone
         ({"FRAME_TYPE": 0, "SERVO1_FUNCTION": 73, "SERVO3_FUNCTION": 74}, 3, 0.5),
         ({"FRAME_TYPE": 1}, 0, -0.5),  # omni: get_pilot_input alone
+        ({"FRAME_TYPE": 0, "SERVO5_FUNCTION": 73, "SERVO6_FUNCTION": 74}, 0, -0.5),  # skid-steer on any outputs
+        ({"FRAME_TYPE": 0, "SERVO30_FUNCTION": 74, "SERVO2_FUNCTION": 73}, 0, -0.5),
+        ({"FRAME_TYPE": 0, "SERVO1_FUNCTION": 73}, 0, 0.5),  # throttle left alone is no skid steering
     ],
 )
 def test_steering_is_flipped_in_reverse_where_ardupilot_flips_it_once(frame: dict, steer_type: int, sent: float):
@@ -158,6 +161,35 @@ def test_a_small_astern_throttle_keeps_the_rudder_the_vessel_meant(throttle: flo
     applied_throttle, rudder = vehicle.actuator(0.0)
     assert rudder == pytest.approx(0.5, abs=1e-3)
     assert applied_throttle == pytest.approx(math.copysign(math.floor(abs(throttle) * 100 + 0.5), throttle) / 100)
+
+
+@pytest.mark.parametrize("expo", [0.0, 0.4, 0.9, -0.5])
+@pytest.mark.parametrize("throttle", [0.3, -0.3])
+def test_the_rudder_is_the_one_asked_for_under_the_autopilots_steering_expo(expo: float, throttle: float) -> None:
+    """In MANUAL ArduPilot shapes the steering with MANUAL_STR_EXPO (Rover/mode_manual.cpp, input_expo): at 0.4 a
+    stick at 0.5 turns the rudder 0.375. The vessel sends the inverse, so through real bytes the simulated
+    autopilot's rudder is the one asked for, ahead and astern; a vessel that ignored the expo would not be."""
+    params = {"MANUAL_STR_EXPO": expo, **SITL_RC}
+    session = _session(MOTORBOAT, FRAME_CLASS=2, FRAME_TYPE=0, PILOT_STEER_TYPE=0, **params)
+    vehicle = SimulatedVehicle(3, MOTORBOAT, 1.0, armed=True, params={"MOT_SLEWRATE": 0, **params})
+    unaware = _session(MOTORBOAT, FRAME_CLASS=2, FRAME_TYPE=0, PILOT_STEER_TYPE=0, **SITL_RC)
+    pwm_step = 0.002 * max(1.0 / (1.0 - expo), 1.0 - expo)  # 1 us of 500, times the expo's steepest slope
+    for steering in (-1.0, -0.5, -0.1, 0.02, 0.25, 0.5, 0.8, 1.0):
+        vehicle.receive(session.override(steering, throttle), 0.0)
+        assert vehicle.actuator(0.0)[1] == pytest.approx(steering, abs=pwm_step)
+        vehicle.receive(unaware.override(steering, throttle), 0.0)
+        if expo != 0.0 and 0.0 < abs(steering) < 1.0:
+            assert abs(vehicle.actuator(0.0)[1] - steering) > 0.05 * abs(steering)
+
+
+def test_steering_speed_scaling_in_manual_is_a_warning_with_what_to_change() -> None:
+    """MANUAL_OPTIONS bit 0 scales the steering with the autopilot's speed and flips it on that speed's sign
+    (AP_MotorsUGV::output_regular with _scale_steering): not what the vessel asks for, so it says so."""
+    quiet = AutopilotProfile({"FRAME_CLASS": 2, "FRAME_TYPE": 0, "FS_GCS_ENABLE": 1, "MANUAL_OPTIONS": 0})
+    scaled = AutopilotProfile({"FRAME_CLASS": 2, "FRAME_TYPE": 0, "FS_GCS_ENABLE": 1, "MANUAL_OPTIONS": 3})
+    assert quiet.warnings(0.1) == []
+    (text,) = scaled.warnings(0.1)
+    assert "MANUAL_OPTIONS" in text and "clear bit 0" in text
 
 
 def test_a_full_scale_unit_is_the_nearest_whole_unit_the_autopilot_reads() -> None:

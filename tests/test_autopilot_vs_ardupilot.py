@@ -60,6 +60,9 @@ def _ask(conn, beat) -> dict:
         "PILOT_STEER_TYPE",
         "INITIAL_MODE",
         "ARMING_CHECK",
+        "MANUAL_STR_EXPO",
+        "SERVO16_FUNCTION",
+        "SERVO32_FUNCTION",
     ]
     for name in names:
         conn.mav.param_request_read_send(1, 1, name.encode(), -1)

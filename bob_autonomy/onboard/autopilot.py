@@ -31,6 +31,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -43,13 +44,14 @@ from firmware_bridge.autopilot_requests import (
     set_message_interval,
 )
 from firmware_bridge.commands import ROVER_MODES, Encoder, rc_override
-from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap, ResolutionCarry
+from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap, ResolutionCarry, before_expo
 
 BUOY, EBOT, MOTORBOAT = "buoy", "ebot", "motorboat"
 OMNI_FRAME_TYPES = {1: "omni3", 2: "omniX", 3: "omniPlus", 4: "omni3mecanum"}
 FRAME_CLASSES = {0: "undefined", 1: "rover", 2: "boat", 3: "balancebot"}
 FORCE_ARM_MAGIC = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2 that skips the checks (GCS_Common.cpp)
 
+SERVO_OUTPUTS = 32  # NUM_SERVO_CHANNELS of a board with over 1 MB of flash, SITL's too (SRV_Channel_config.h)
 CORE_PARAMS = (
     "FRAME_CLASS",
     "FRAME_TYPE",
@@ -70,10 +72,12 @@ CORE_PARAMS = (
     "MOT_VEC_ANGLEMAX",
     "WENC_TYPE",
     "TURN_RADIUS",
-    "SERVO1_FUNCTION",
-    "SERVO3_FUNCTION",
+    "MANUAL_OPTIONS",
+    "MANUAL_STR_EXPO",
+    *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
 SKID_STEER_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
+MANUAL_SPEED_SCALING = 1  # MANUAL_OPTIONS bit 0: steering scaled down with speed (Rover/Parameters.cpp)
 RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
 
 # Messages the estimators need and the rates asked for (Hz), with the slowest rate still usable. ArduPilot
@@ -169,12 +173,22 @@ class AutopilotProfile:
         v = self.values.get("RC_OVERRIDE_TIME")
         return 3.0 if v is None or not math.isfinite(v) else float(v)
 
-    @property
+    @cached_property
     def skid_steering(self) -> bool:
-        """Throttle left / right on the usual outputs (SERVO1_FUNCTION, SERVO3_FUNCTION 73 / 74)."""
-        return any(_int(self.values, f"SERVO{n}_FUNCTION", 0) in SKID_STEER_FUNCTIONS for n in (1, 3))
+        """Throttle left and throttle right (SERVOn_FUNCTION 73 and 74) both on some output, any of the 32
+        (AP_MotorsUGV::have_skid_steering: SRV_Channels::function_assigned of both)."""
+        functions = {_int(self.values, f"SERVO{n}_FUNCTION", 0) for n in range(1, SERVO_OUTPUTS + 1)}
+        return set(SKID_STEER_FUNCTIONS) <= functions
 
-    @property
+    @cached_property
+    def steering_expo(self) -> float:
+        """MANUAL_STR_EXPO: in MANUAL, ArduPilot shapes the steering stick x into (1 - e) x / (1 - e |x|)
+        (Rover/mode_manual.cpp, AP_Math input_expo; none at e >= 0.95), so a steering command must be sent
+        through the inverse (`firmware_bridge.rc_channels.before_expo`) to come out as meant."""
+        expo = self.values.get("MANUAL_STR_EXPO", 0.0)
+        return float(expo) if expo is not None and math.isfinite(expo) else 0.0
+
+    @cached_property
     def steering_flips_in_reverse(self) -> bool:
         """Whether, in MANUAL, what the steering stick does is turned the other way while the autopilot reads the
         throttle as negative. Rover/mode.cpp get_pilot_input flips the stick for PILOT_STEER_TYPE 0 and 2; a frame
@@ -253,6 +267,12 @@ class AutopilotProfile:
         """What is drivable but unsafe or surprising, each with what to change."""
         found = []
         timeout = self.override_timeout_s
+        if _int(self.values, "MANUAL_OPTIONS", 0) & MANUAL_SPEED_SCALING:
+            found.append(
+                "MANUAL_OPTIONS has bit 0 (steering speed scaling) set: in MANUAL the autopilot scales the steering "
+                "down with its ground speed and flips it on its own speed's sign, not on the throttle's, so the "
+                "steering this process asks for is not the steering applied; clear bit 0 of MANUAL_OPTIONS"
+            )
         if timeout < 0:
             found.append(
                 "RC_OVERRIDE_TIME is -1: overrides never lapse, so if this computer dies the last command runs on; "
@@ -472,8 +492,9 @@ class AutopilotSession:
         """RC_CHANNELS_OVERRIDE for normalised steering (positive = turn right), throttle (positive = forward) and
         lateral (positive = right), each in [-1, 1] (non-finite -> neutral), through the autopilot's RC map and
         calibration, throttle and lateral in the whole percent the autopilot reads (finer commands spread over
-        successive overrides: `ResolutionCarry`); the steering sign is flipped where the autopilot will read the
-        throttle as negative and flip it back."""
+        successive overrides: `ResolutionCarry`); the steering goes through the inverse of the autopilot's
+        MANUAL_STR_EXPO and its sign is flipped where the autopilot will read the throttle as negative and flip it
+        back."""
         steer = float(steering) if math.isfinite(steering) else 0.0
         thr = self.carry("throttle", float(throttle) if math.isfinite(throttle) else 0.0)
         lat = None if lateral is None or not math.isfinite(lateral) else float(lateral)
@@ -481,6 +502,7 @@ class AutopilotSession:
             lat = None
         if lat is not None:
             lat = self.carry("lateral", lat)
+        steer = before_expo(steer, self.profile.steering_expo)
         flip = self.profile.steering_flips_in_reverse
         channels = self.profile.rc_map.channels_for(steer, thr, lat, flip_in_reverse=flip)
         self.sent.append((float(self.clock()), channels))

@@ -44,6 +44,8 @@ FRAME_ROVER, FRAME_BOAT = 1, 2
 FRAME_TYPE_UNDEFINED, FRAME_TYPE_OMNIX = 0, 2
 SERVO_GROUND_STEERING, SERVO_THROTTLE, SERVO_THROTTLE_LEFT, SERVO_THROTTLE_RIGHT = 26, 70, 73, 74
 SERVO_MOTOR1 = 33  # motor1..motor4 = 33..36
+SERVO_GPIO = -1
+SERVO_OUTPUTS = 32  # SERVO1..32 (NUM_SERVO_CHANNELS on SITL and boards over 1 MB: SRV_Channel_config.h)
 KIND_FRAMES = {
     # A BoB buoy: a boat with vectored thrust, i.e. an omni frame (OmniX: 4 motors), so lateral (RCMAP_YAW) moves it
     # sideways (AP_MotorsUGV::setup_omni, is_omni).
@@ -108,6 +110,7 @@ def rover_parameter_table(kind: str, system_id: int, gcs_system_id: int = 255) -
         ParamSpec("FRAME_TYPE", 0, INT8, 0, 4, rover),
         ParamSpec("INITIAL_MODE", 0, INT8, 0, 16, rover),
         ParamSpec("PILOT_STEER_TYPE", 0, INT8, 0, 3, rover),
+        ParamSpec("MANUAL_STR_EXPO", 0.0, REAL32, -0.5, 0.95, rover),
         ParamSpec("CRUISE_SPEED", 2.0, REAL32, 0, 100, rover),
         ParamSpec("CRUISE_THROTTLE", 50, INT8, 0, 100, rover),
         ParamSpec("FS_ACTION", 2, INT8, 0, 6, rover),
@@ -136,7 +139,10 @@ def rover_parameter_table(kind: str, system_id: int, gcs_system_id: int = 255) -
         ParamSpec("TURN_RADIUS", 0.9, REAL32, 0, 10, rover),
     ]
     servo = "Rover/Parameters.cpp (set_default_function), libraries/SRV_Channel/SRV_Channel_aux.cpp"
-    specs += [ParamSpec(f"SERVO{i}_FUNCTION", {1: 26, 3: 70}.get(i, 0), INT16, -1, 200, servo) for i in range(1, 5)]
+    # Outputs 17-32 default to GPIO (-1: disabled; SRV_Channels.cpp constructor), the others to none (0).
+    functions = {1: SERVO_GROUND_STEERING, 3: SERVO_THROTTLE}
+    defaults = {i: functions.get(i, 0 if i <= 16 else SERVO_GPIO) for i in range(1, SERVO_OUTPUTS + 1)}
+    specs += [ParamSpec(f"SERVO{i}_FUNCTION", f, INT16, -1, 200, servo) for i, f in defaults.items()]
     specs += _rc_specs((1, 3, 4))
     rates, hz = "libraries/GCS_MAVLink/GCS_MAVLink_Parameters.cpp", ROVER_STREAM_DEFAULTS_HZ
     specs += [ParamSpec(STREAM_PORT_PREFIX + g, hz[g], INT16, 0, 50, rates) for g in STREAM_PARAMS]

@@ -63,6 +63,15 @@ def scale_angle(
     return sign * math.copysign(units, above) / full_scale
 
 
+def input_expo(stick: float, expo: float) -> float:
+    """The stick in [-1, 1] shaped by an expo e (AP_Math/control.cpp input_expo, MANUAL_STR_EXPO in Rover's
+    MANUAL): (1 - e) x / (1 - e |x|) after clamping x to [-1, 1], for e < 0.95; above that x is left alone."""
+    x = min(1.0, max(-1.0, stick))
+    if expo >= 0.95:
+        return x
+    return (1.0 - expo) * x / (1.0 - expo * abs(x))
+
+
 def norm_input_dz(pwm: int, low: int, trim: int, high: int, dead_zone: int, reversed_: bool) -> float:
     """RC_Channel::norm_input_dz (used by the two-paddle steering type)."""
     sign = -1.0 if reversed_ else 1.0

@@ -37,7 +37,7 @@ from firmware_bridge.decoder import TelemetryDecoder
 from firmware_bridge.telemetry import TelemetryEncoder
 from sitl.vehicles import autopilot_safety as safety
 from sitl.vehicles.autopilot_mission import MissionStore
-from sitl.vehicles.autopilot_params import STREAM_PORT_PREFIX, ParameterStore, rover_parameter_table
+from sitl.vehicles.autopilot_params import SERVO_OUTPUTS, STREAM_PORT_PREFIX, ParameterStore, rover_parameter_table
 from sitl.vehicles.autopilot_rc import (
     PilotOutput,
     RcInput,
@@ -169,12 +169,12 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         return self._frame()[1]
 
     def _frame(self) -> tuple[bool, bool]:
-        """(omni, skid steering) from FRAME_TYPE and SERVO1..4_FUNCTION, read again only when a parameter changed
+        """(omni, skid steering) from FRAME_TYPE and SERVO1..32_FUNCTION, read again only when a parameter changed
         (these are asked several times per vehicle and step)."""
         if self._frame_version != self.params.version:
             p = self.params
             omni = p.get_int("FRAME_TYPE") != 0  # AP_MotorsUGV::is_omni (a known frame type has motors)
-            functions = {p.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)}
+            functions = {p.get_int(f"SERVO{i}_FUNCTION") for i in range(1, SERVO_OUTPUTS + 1)}
             self._frame_cache, self._frame_version = (omni, {73, 74} <= functions or omni), p.version
         return self._frame_cache
 
@@ -387,12 +387,12 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         return list(self._servo_cache[1])
 
     def _servo_pwms(self, out: PilotOutput) -> list[int]:
-        functions = [self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 5)]
+        functions = [self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 9)]
         values = {26: self._steering_output(out), 70: out.throttle}
         values[73], values[74] = skid_outputs(out)
         for k, v in enumerate(omni_motor_outputs(self.params.get_int("FRAME_TYPE"), out)):
             values[33 + k] = v
-        return [servo_pwm(values[f]) if f in values else 0 for f in functions] + [0] * 4
+        return [servo_pwm(values[f]) if f in values else 0 for f in functions]
 
 
 # The sensor readings' way into the vehicles (re-exported: callers import them from here).

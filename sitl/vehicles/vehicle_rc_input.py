@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from firmware_bridge.commands import ROVER_MODES
 from sitl.vehicles.autopilot_rc import (
     PilotOutput,
+    input_expo,
     norm_input_dz,
     pilot_demand,
     scale_angle,
@@ -108,10 +110,12 @@ class RcInputHandling:
     def _read_pilot(self) -> tuple[float, float, float]:
         """(steering, throttle, lateral) from RC inputs 1-8 (the RCMAP roles are among them) and the parameters;
         kept while both stay as they were (asked when an override arrives and when the motors run)."""
-        key = (self.params.version, *self.rc.radio_in[:8])
+        key = (self.params.version, self.mode, *self.rc.radio_in[:8])
         if self._pilot_cache is None or self._pilot_cache[0] != key:
             steer_type = self.params.get_int("PILOT_STEER_TYPE")
             steering, throttle = pilot_demand(self._channel, steer_type, self.skid_steer())
+            if self.mode == ROVER_MODES["MANUAL"]:  # Rover/mode_manual.cpp: the steering expo, MANUAL only
+                steering = input_expo(steering, float(self.params["MANUAL_STR_EXPO"]))
             lateral = self._channel("lateral") if self.omni() else 0.0
             self._pilot_cache = (key, (steering, throttle, lateral))
         return self._pilot_cache[1]

@@ -6,6 +6,10 @@ the vessel meant, ahead, 5 % astern and 0.4 % astern. Before, the vessel pre-fli
 negative wish, which put the rudder on the other side at 5 % astern (and at 0.4 %, read as 0, on the side meant
 except on the overrides that carried -1 %) (docs/ardupilot.md).
 
+Two settings a boat owner may have changed, also read from the autopilot: MANUAL_STR_EXPO (ArduPilot shapes the
+steering in MANUAL; the vessel sends the inverse, so the rudder is the one asked for) and throttle left / right on
+outputs other than SERVO1 / SERVO3 (still skid steering: AP_MotorsUGV::have_skid_steering looks at every output).
+
 Skipped unless ARDUPILOT_SITL names a built `ardurover`. Judged by SERVO_OUTPUT_RAW on the autopilot's SERIAL1.
 """
 
@@ -17,7 +21,7 @@ import pytest
 from pymavlink import mavutil
 from sitl_harness import RoverSitl, sitl_binary
 
-from bob_autonomy.onboard.autopilot import MOTORBOAT, AutopilotSession
+from bob_autonomy.onboard.autopilot import CORE_PARAMS, EBOT, MOTORBOAT, AutopilotSession
 from firmware_bridge.commands import Encoder
 
 BINARY = sitl_binary()
@@ -41,6 +45,60 @@ def _read_params(link, names: list[str], timeout_s: float = 20.0) -> dict[str, f
     missing = [n for n in names if n not in values]
     assert not missing, f"the autopilot did not answer for {missing}"
     return values
+
+
+def _session_on(sitl: RoverSitl, kind: str, extra: list[str]) -> tuple:
+    """A link to SERIAL0 and a session that has read the start-up parameters (CORE_PARAMS, those that exist) and
+    `extra`, armed in MANUAL."""
+    link = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.serial0}", source_system=255, source_component=190)
+    session = AutopilotSession(1, kind, Encoder(), clock=time.monotonic)
+    session.params.update(_read_params(link, [n for n in CORE_PARAMS if n != "SYSID_MYGCS"] + PARAMS + extra))
+    session.learn()
+    link.write(session.set_mode("MANUAL"))
+    deadline = time.monotonic() + 30
+    while not (sitl.seen.modes and sitl.seen.modes[-1][2]) and time.monotonic() < deadline:
+        link.write(session.arm(force=True))
+        time.sleep(1.0)
+    assert sitl.seen.modes and sitl.seen.modes[-1][2], f"not armed: {sitl.seen.texts[-5:]}"
+    return link, session
+
+
+def _outputs_while(sitl: RoverSitl, link, session: AutopilotSession, steering: float, throttle: float) -> list:
+    """SERVO1..8 (us) while overrides go out at 10 Hz for 3 s, from 1 s on."""
+    start = time.monotonic()
+    while time.monotonic() - start < 3.0:
+        link.write(session.override(steering, throttle))
+        time.sleep(0.1)
+    link.write(session.override(0.0, 0.0))
+    return [servos for t, servos in sitl.seen.servos if t > start + 1.0]
+
+
+def test_the_rudder_is_the_one_asked_for_under_a_steering_expo(tmp_path) -> None:
+    """MANUAL_STR_EXPO 0.4: a stick at 0.5 would give a rudder of 0.375 (Rover/mode_manual.cpp input_expo)."""
+    with RoverSitl(BINARY, "motorboat", tmp_path, params={"MANUAL_STR_EXPO": 0.4}) as sitl:
+        sitl.wait_initialised()
+        link, session = _session_on(sitl, MOTORBOAT, ["SERVO1_MIN", "SERVO1_TRIM", "SERVO1_MAX"])
+        assert session.profile.steering_expo == pytest.approx(0.4)
+        low, trim, high = (session.params[f"SERVO1_{f}"] for f in ("MIN", "TRIM", "MAX"))
+        for steering in (0.5, -0.25):
+            rudder = [servos[0] for servos in _outputs_while(sitl, link, session, steering, 0.05)]
+            assert len(rudder) >= 1, "no SERVO_OUTPUT_RAW from the autopilot"
+            fractions = [(r - trim) / ((high - trim) if r >= trim else (trim - low)) for r in rudder]
+            assert all(f == pytest.approx(steering, abs=0.01) for f in fractions), (steering, rudder)
+
+
+def test_throttle_left_and_right_on_other_outputs_still_turn_the_way_meant_astern(tmp_path) -> None:
+    """A skid-steer rover with its throttles on SERVO5 (left) and SERVO6 (right): ArduPilot flips the steering
+    once astern (get_pilot_input; output_skid_steering keeps it), so the vessel must pre-flip it. Asked to turn
+    clockwise (steering 0.5) at 30 % astern, the left side must run faster than the right."""
+    moved = {"SERVO1_FUNCTION": 0, "SERVO3_FUNCTION": 0, "SERVO5_FUNCTION": 73, "SERVO6_FUNCTION": 74}
+    with RoverSitl(BINARY, "skid", tmp_path, params=moved) as sitl:
+        sitl.wait_initialised()
+        link, session = _session_on(sitl, EBOT, [])
+        assert session.profile.skid_steering and session.profile.steering_flips_in_reverse
+        outputs = _outputs_while(sitl, link, session, 0.5, -0.3)
+        assert outputs, "no SERVO_OUTPUT_RAW from the autopilot"
+        assert all(servos[4] > 1500 > servos[5] for servos in outputs), [s[4:6] for s in outputs]
 
 
 def _rudder_outputs(sitl: RoverSitl, link, session: AutopilotSession, throttle: float, seconds: float) -> list[int]:
