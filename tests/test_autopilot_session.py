@@ -192,6 +192,13 @@ def test_steering_speed_scaling_in_manual_is_a_warning_with_what_to_change() -> 
     assert "MANUAL_OPTIONS" in text and "clear bit 0" in text
 
 
+@pytest.mark.parametrize(("thr_max", "ceiling"), [(None, 1.0), (100, 1.0), (50, 0.5), (10, 0.3), (150, 1.0)])
+def test_the_throttle_ceiling_is_mot_thr_max_as_ardupilot_keeps_it(thr_max: float | None, ceiling: float) -> None:
+    """AP_MotorsUGV::sanity_check_parameters keeps MOT_THR_MAX within 30-100 %; the demand is clipped to it."""
+    values = {} if thr_max is None else {"MOT_THR_MAX": thr_max}
+    assert AutopilotProfile(values).throttle_ceiling == ceiling
+
+
 def test_a_full_scale_unit_is_the_nearest_whole_unit_the_autopilot_reads() -> None:
     """pwm_for(value, full_scale) is read back (control_in) as value x full_scale rounded to the nearest unit, on
     every calibration, both ways, for throttle (100) and steering (4500: the nearer of the PWMs about it)."""

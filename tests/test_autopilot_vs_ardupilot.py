@@ -61,6 +61,7 @@ def _ask(conn, beat) -> dict:
         "INITIAL_MODE",
         "ARMING_CHECK",
         "MANUAL_STR_EXPO",
+        "MOT_THR_MAX",
         "SERVO16_FUNCTION",
         "SERVO32_FUNCTION",
     ]

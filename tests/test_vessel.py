@@ -110,6 +110,21 @@ def test_vessel_arms_its_vehicle_and_drives_it_to_the_goal(stand_in: StandInVehi
     assert summary["compute_latency_s_median"] < summary["compute_latency_s_p99"] + 1e-12
 
 
+def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(stand_in: StandInVehicle) -> None:
+    """MOT_THR_MAX 50: ArduPilot clips the throttle demand to 50 % (AP_MotorsUGV::set_throttle). The vessel reads it
+    at start and its controller plans with half the thrust, so no override it sends asks for more than half
+    throttle or half lateral."""
+    assert stand_in.vehicle.params.set("MOT_THR_MAX", 50)
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    stats = vessel.run(duration_s=15.0)
+    assert vessel.config.max_thrust_fraction == 0.5 and stats.commands > 30
+    np.testing.assert_allclose(vessel.pipeline.max_thrust_n, 0.5 * vessel.pipeline.model.max_thrust_n)
+    profile = vessel.autopilot.profile
+    half = [round(0.5 * (profile.rc_map.range_of(ch).max_us - 1500)) + 1 for ch in (3, 4)]  # us from trim, 1 of slack
+    sent = [channels for _t, channels in vessel.autopilot.sent]
+    assert sent and all(abs(c[3] - 1500) <= half[0] and abs(c[4] - 1500) <= half[1] for c in sent)
+
+
 def test_vessel_stops_and_raises_an_alarm_when_its_vehicle_goes_silent(stand_in: StandInVehicle) -> None:
     vessel = Vessel(_config(stand_in.port, heartbeat_timeout_s=2.0), clock=ScaledWallClock(SCALE))
     timer = threading.Timer(1.5, stand_in.muted.set)  # wall s: ~7.5 clock s into the run

@@ -74,6 +74,7 @@ CORE_PARAMS = (
     "TURN_RADIUS",
     "MANUAL_OPTIONS",
     "MANUAL_STR_EXPO",
+    "MOT_THR_MAX",
     *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
 SKID_STEER_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
@@ -214,6 +215,15 @@ class AutopilotProfile:
         if cruise <= 0 or throttle <= 0:
             return None
         return float(cruise) * 100.0 / float(throttle)
+
+    @property
+    def throttle_ceiling(self) -> float:
+        """MOT_THR_MAX as a fraction: the autopilot clips the throttle demand to +-this (AP_MotorsUGV::set_throttle;
+        sanity_check_parameters keeps it within 30-100 %), so a boat's controller plans with no more."""
+        value = self.values.get("MOT_THR_MAX")
+        if value is None or not math.isfinite(value):
+            return 1.0
+        return min(max(float(int(value)), 30.0), 100.0) / 100.0
 
     @property
     def turn_radius_m(self) -> float | None:

@@ -321,7 +321,15 @@ class Vessel(VesselLinks, AutopilotDriving):
             return
         speed = profile.top_speed_mps
         on_ground = profile.known and profile.frame_class != 2  # FRAME_CLASS 2: a boat
-        if c.kind == BUOY and ((c.top_speed_mps is None and speed is not None) or on_ground):
+        capped = c.kind in (BUOY, MOTORBOAT) and profile.throttle_ceiling < c.max_thrust_fraction
+        if capped:
+            # MOT_THR_MAX clips the throttle: plan with no more (a buoy's lateral is not clipped; kept within it too).
+            self.config = c = replace(c, max_thrust_fraction=profile.throttle_ceiling)
+            logger.info(
+                "throttle limited to %.0f %% by MOT_THR_MAX: the controller plans with that",
+                100 * c.max_thrust_fraction,
+            )
+        if c.kind == BUOY and ((c.top_speed_mps is None and speed is not None) or on_ground or capped):
             # The autopilot knows how fast full throttle goes and whether it floats; the estimator and the MPC
             # model that vehicle.
             top = c.top_speed_mps or speed
@@ -330,7 +338,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             logger.info(
                 "vessel model: top speed %s m/s at full throttle, %s", top, "on the ground" if on_ground else "afloat"
             )
-        if c.kind == MOTORBOAT and (c.top_speed_mps is None or profile.turn_radius_m is not None):
+        if c.kind == MOTORBOAT and (c.top_speed_mps is None or profile.turn_radius_m is not None or capped):
             # The autopilot says how fast full throttle goes (SPEED_MAX or CRUISE_*) and how tight it turns
             # (TURN_RADIUS): the MPC plans with that boat.
             top = min(max(c.top_speed_mps or speed or 2.0, 0.1), 50.0)  # what MotorboatModel takes

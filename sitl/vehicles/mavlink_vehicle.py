@@ -363,13 +363,16 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
 
     def actuator(self, t_s: float) -> np.ndarray:
         """The thrust (N, body frame) or wheel speeds (m/s) applied now: pilot input (RC) in MANUAL, ACRO and
-        STEERING while armed and out of radio failsafe, zero otherwise; throttle slew-limited (MOT_SLEWRATE)."""
+        STEERING while armed and out of radio failsafe, zero otherwise; throttle within MOT_THR_MAX and slew-limited
+        (MOT_SLEWRATE)."""
         self._tick(t_s)
         dt = 0.0 if self._actuator_t is None else max(0.0, t_s - self._actuator_t)
         self._actuator_t = t_s
         steering = throttle = lateral = 0.0
         if self.armed and self.mode in DRIVING_MODES and not self.radio_failsafe_on():
             steering, throttle, lateral = self._read_pilot()
+        ceiling = self.params["MOT_THR_MAX"] / 100.0  # AP_MotorsUGV::set_throttle clips the demand to +-MOT_THR_MAX
+        throttle = min(ceiling, max(-ceiling, throttle))
         limited = slew_limited(throttle, self._throttle, self.params["MOT_SLEWRATE"], dt)
         if (throttle < 0) != (limited < 0) and self.params.get_int("PILOT_STEER_TYPE") in (0, 2):
             steering = -steering  # Rover/mode.cpp: throttle still on the other side of zero

@@ -87,6 +87,21 @@ def test_the_rudder_is_the_one_asked_for_under_a_steering_expo(tmp_path) -> None
             assert all(f == pytest.approx(steering, abs=0.01) for f in fractions), (steering, rudder)
 
 
+def test_the_throttle_is_clipped_to_mot_thr_max_which_the_vessel_reads(tmp_path) -> None:
+    """MOT_THR_MAX 50: asked for 80 %, ArduPilot's throttle output (SERVO3) stays at 50 % of its throw; the vessel
+    reads the limit at start (and then plans with it: tests/test_vessel.py)."""
+    with RoverSitl(BINARY, "motorboat", tmp_path, params={"MOT_THR_MAX": 50}) as sitl:
+        sitl.wait_initialised()
+        link, session = _session_on(sitl, MOTORBOAT, ["SERVO3_MIN", "SERVO3_TRIM", "SERVO3_MAX"])
+        assert session.profile.throttle_ceiling == 0.5
+        trim, high = session.params["SERVO3_TRIM"], session.params["SERVO3_MAX"]
+        outputs = _outputs_while(sitl, link, session, 0.0, 0.8)
+        assert outputs, "no SERVO_OUTPUT_RAW from the autopilot"
+        assert all((servos[2] - trim) / (high - trim) == pytest.approx(0.5, abs=0.01) for servos in outputs[-5:]), [
+            servos[2] for servos in outputs
+        ]
+
+
 def test_throttle_left_and_right_on_other_outputs_still_turn_the_way_meant_astern(tmp_path) -> None:
     """A skid-steer rover with its throttles on SERVO5 (left) and SERVO6 (right): ArduPilot flips the steering
     once astern (get_pilot_input; output_skid_steering keeps it), so the vessel must pre-flip it. Asked to turn
