@@ -6,9 +6,10 @@ the vessel meant, ahead, 5 % astern and 0.4 % astern. Before, the vessel pre-fli
 negative wish, which put the rudder on the other side at 5 % astern (and at 0.4 %, read as 0, on the side meant
 except on the overrides that carried -1 %) (docs/ardupilot.md).
 
-Two settings a boat owner may have changed, also read from the autopilot: MANUAL_STR_EXPO (ArduPilot shapes the
-steering in MANUAL; the vessel sends the inverse, so the rudder is the one asked for) and throttle left / right on
-outputs other than SERVO1 / SERVO3 (still skid steering: AP_MotorsUGV::have_skid_steering looks at every output).
+Three settings a boat owner may have changed, also read from the autopilot: MANUAL_STR_EXPO (ArduPilot shapes the
+steering in MANUAL; the vessel sends the inverse, so the rudder is the one asked for), MOT_THR_MAX (the throttle is
+clipped to it; the vessel plans within it) and throttle left / right on outputs other than SERVO1 / SERVO3 (still
+skid steering: AP_MotorsUGV::have_skid_steering looks at every output).
 
 Skipped unless ARDUPILOT_SITL names a built `ardurover`. Judged by SERVO_OUTPUT_RAW on the autopilot's SERIAL1.
 """
