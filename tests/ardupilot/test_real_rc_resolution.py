@@ -117,37 +117,18 @@ def test_throttle_left_and_right_on_other_outputs_still_turn_the_way_meant_aster
         assert all(servos[4] > 1500 > servos[5] for servos in outputs), [s[4:6] for s in outputs]
 
 
-def _rudder_outputs(sitl: RoverSitl, link, session: AutopilotSession, throttle: float, seconds: float) -> list[int]:
-    """SERVO1 (us) while overrides of steering 0.5 (to starboard) and `throttle` go out at 10 Hz, after 1 s."""
-    start = time.monotonic()
-    while time.monotonic() - start < seconds:
-        link.write(session.override(0.5, throttle))
-        time.sleep(0.1)
-    return [servos[0] for t, servos in sitl.seen.servos if t > start + 1.0]
-
-
 def test_the_rudder_is_on_the_side_meant_ahead_astern_and_under_a_percent_astern(tmp_path) -> None:
     with RoverSitl(BINARY, "motorboat", tmp_path) as sitl:
         sitl.wait_initialised()
-        link = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.serial0}", source_system=255, source_component=190)
-        session = AutopilotSession(1, MOTORBOAT, Encoder(), clock=time.monotonic)
-        session.params.update(_read_params(link, PARAMS))
-        session.learn()
+        link, session = _session_on(sitl, MOTORBOAT, [])
         # PILOT_STEER_TYPE 0 on a frame with a steering output: flipped by get_pilot_input, back by output_regular
         assert session.params["PILOT_STEER_TYPE"] == 0 and not session.profile.steering_flips_in_reverse
-        link.write(session.set_mode("MANUAL"))
-        deadline = time.monotonic() + 30
-        while not (sitl.seen.modes and sitl.seen.modes[-1][2]) and time.monotonic() < deadline:
-            link.write(session.arm(force=True))
-            time.sleep(1.0)
-        assert sitl.seen.modes and sitl.seen.modes[-1][2], f"not armed: {sitl.seen.texts[-5:]}"
         sides = {}
         for throttle in (0.05, -0.05, -0.004):  # ahead; 5 % astern; 0.4 % astern (0, or -1 % now and then)
             session.carry = type(session.carry)()
-            rudder = _rudder_outputs(sitl, link, session, throttle, 3.0)
+            rudder = [servos[0] for servos in _outputs_while(sitl, link, session, 0.5, throttle)]
             assert len(rudder) >= 5, "no SERVO_OUTPUT_RAW from the autopilot"
             sides[throttle] = {(r > 1500) - (r < 1500) for r in rudder}
-        link.write(session.override(0.0, 0.0))
         ahead = sides[0.05]
         assert len(ahead) == 1 and ahead != {0}, sides
         assert sides[-0.05] == ahead and sides[-0.004] == ahead, sides
