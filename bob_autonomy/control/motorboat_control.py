@@ -115,7 +115,9 @@ class MotorboatModel:
     turning_radius_m: turning radius at full steering, m. yaw_time_constant_s: how fast the yaw rate follows the
     steering, s. steering_slew_per_s: fastest steering change, full-scale units per s. reverse_thrust_fraction:
     thrust astern at full reverse throttle as a fraction of max_thrust_n (a propeller pushes less astern; the
-    autopilot does not say: 0.5 is a cautious guess, ArduPilot's SITL motorboat has 1).
+    autopilot does not say: 0.5 is a cautious guess, ArduPilot's SITL motorboat has 1). throttle_slew_per_s: the
+    fastest throttle change the autopilot lets through, full-scale throttle units per s (ArduPilot's MOT_SLEWRATE /
+    100: its default 100 %/s takes 2 s from full ahead to full astern; AP_MotorsUGV::slew_limit_throttle); 0: none.
     """
 
     mass_kg: float = 33.0
@@ -126,10 +128,13 @@ class MotorboatModel:
     yaw_time_constant_s: float = 0.3
     steering_slew_per_s: float = 2.0
     reverse_thrust_fraction: float = 0.5
+    throttle_slew_per_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.reverse_thrust_fraction <= 1.0:
             raise ValueError("reverse_thrust_fraction must be in [0, 1]")
+        if not (math.isfinite(self.throttle_slew_per_s) and self.throttle_slew_per_s >= 0.0):
+            raise ValueError(f"throttle_slew_per_s must be finite and >= 0 (0: none), got {self.throttle_slew_per_s!r}")
         values = (self.mass_kg, self.max_thrust_n, self.turning_radius_m, self.yaw_time_constant_s)
         if min(values) <= 0.0 or self.steering_slew_per_s <= 0.0 or not all(map(math.isfinite, values)):
             raise ValueError("mass, max thrust, turning radius, yaw time constant and steering slew must be > 0")
@@ -139,12 +144,15 @@ class MotorboatModel:
             raise ValueError("the hull needs some drag")
 
     @classmethod
-    def for_top_speed(cls, top_speed_mps: float, turning_radius_m: float | None = None) -> MotorboatModel:
+    def for_top_speed(
+        cls, top_speed_mps: float, turning_radius_m: float | None = None, throttle_slew_per_s: float = 0.0
+    ) -> MotorboatModel:
         """The nominal boat with its drag rescaled to reach `top_speed_mps` at full throttle (the split between
         linear and quadratic drag at top speed kept, as BuoyModel.for_top_speed), and this turning radius (m).
         Its mass is scaled by nominal top speed / top speed, so that full throttle takes it to its top speed in
         the same time whatever that speed (1.6 s to 63 %): the autopilot tells a top speed, never a mass, and a
-        fast boat is not a slow boat with a heavier hull (ArduPilot's SITL motorboat: 2 kg, 10 m/s)."""
+        fast boat is not a slow boat with a heavier hull (ArduPilot's SITL motorboat: 2 kg, 10 m/s).
+        throttle_slew_per_s: the autopilot's throttle slew (MOT_SLEWRATE / 100), per s; 0: none."""
         v = float(top_speed_mps)
         if not (math.isfinite(v) and 0.1 <= v <= 50.0):
             raise ValueError(f"top speed must be 0.1..50 m/s, got {top_speed_mps!r}")
@@ -160,6 +168,7 @@ class MotorboatModel:
             yaw_time_constant_s=base.yaw_time_constant_s,
             steering_slew_per_s=base.steering_slew_per_s,
             reverse_thrust_fraction=base.reverse_thrust_fraction,
+            throttle_slew_per_s=throttle_slew_per_s,
         )
 
     def throttle_of(self, fraction: float) -> float:
@@ -388,6 +397,8 @@ class MotorboatMpc:
     fraction of top speed. min_throttle: the lowest throttle (-1, the default: full astern; 0: never astern).
     reverse_speed_mps: see References. solver: casadi conic plugin.
     time_budget_s: a solve using more CPU time than this is discarded for the fallback, s.
+    call_period_s: how often `solve` is called, s (default step_s): how far the autopilot's throttle output can
+    have moved towards a command by the next call, when the model has a throttle slew.
 
     Attributes: solves, fallbacks (counts), last_plan ((horizon, 2) throttle and steering of the last QP, or None).
     """
@@ -408,9 +419,14 @@ class MotorboatMpc:
         reverse_speed_mps: float = REVERSE_SPEED_MPS,
         solver: str | None = None,
         time_budget_s: float = 0.02,
+        call_period_s: float | None = None,
     ) -> None:
         if step_s <= 0.0 or horizon < 2:
             raise ValueError("need step_s > 0 and horizon >= 2")
+        period = step_s if call_period_s is None else float(call_period_s)
+        if not (math.isfinite(period) and period > 0.0):
+            raise ValueError(f"call_period_s must be finite and > 0, got {call_period_s!r}")
+        self.call_period_s = period
         positive = (heading_weight, speed_weight, throttle_change_weight, steering_change_weight)
         if min(positive) <= 0 or steering_weight < 0:
             raise ValueError("need heading, speed and change weights > 0 and steering_weight >= 0")
@@ -428,6 +444,7 @@ class MotorboatMpc:
         self.fallbacks = 0
         self.last_plan: FloatArray | None = None
         self._previous = (0.0, 0.0)  # (thrust fraction, steering) last returned
+        self._output = 0.0  # the autopilot's throttle output as its slew lets it follow our commands (throttle units)
         self._bar = np.zeros(self.horizon)  # the linearisation point: the plan's speed through the water per step
         # The QP is formulated and its casadi Functions built once per boat model and tuning (cached: a fleet of
         # identical boats shares them); each controller has its own buffers.
@@ -438,15 +455,14 @@ class MotorboatMpc:
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         self._qp.inputs["a"][:] = constraint_values
-        step = self.model.steering_slew_per_s * self.step_s
-        self._qp.inputs["lba"][:] = -step
-        self._qp.inputs["uba"][:] = step
+        self._qp.inputs["lba"][:], self._qp.inputs["uba"][:] = _change_row_bounds(self.model, self.step_s, self.horizon)
         self._solve_qp(0.0, 0.0, 0.5, 1.0, (-0.5, 1.0))  # warm-up: the first real call is not the slow one
         self.reset()
 
     def reset(self) -> None:
         """Forget the previous command and plan (the boat is idle)."""
         self._previous = (0.0, 0.0)
+        self._output = 0.0
         self._bar = np.zeros(self.horizon)
         self.last_plan = None
         self.references.reset()
@@ -465,6 +481,7 @@ class MotorboatMpc:
         self._data()
         lbx, ubx = qp["lbx"], qp["ubx"]
         lbx[:n], ubx[:n] = bounds
+        lbx[0], ubx[0] = self.first_thrust_bounds(bounds)
         lbx[n:], ubx[n:] = -1.0, 1.0
         step = self.model.steering_slew_per_s * self.step_s
         lbx[n], ubx[n] = max(-1.0, self._previous[1] - step), min(1.0, self._previous[1] + step)
@@ -515,6 +532,7 @@ class MotorboatMpc:
         if holding or limit <= 1e-9:
             throttle = self.fallback.brake(u0, limit)
             self._previous = (self.model.fraction_of(throttle), self._slewed(0.0))
+            self._follow(throttle)
             self.last_plan = None
             return MotorboatCommand(throttle, self._previous[1], True, False, 0.0, "hold")
         self.solves += 1
@@ -562,7 +580,32 @@ class MotorboatMpc:
         steering = self._slewed(min(max(steering, -1.0), 1.0))
         self._previous = (fraction, steering)
         throttle = self.model.throttle_of(fraction)
+        self._follow(throttle)
         return MotorboatCommand(throttle, steering, ok, fallback, elapsed, status, call.error, call.reference)
+
+    def first_thrust_bounds(self, bounds: tuple[float, float]) -> tuple[float, float]:
+        """The plan's first thrust fraction: within `bounds` and within what the autopilot's throttle slew reaches
+        in one plan step from its output now (all of `bounds` without a slew). Where the two do not meet (the
+        output is still far outside the bounds), the reachable value nearest them."""
+        m = self.model
+        if m.throttle_slew_per_s <= 0.0:
+            return bounds
+        reach = m.throttle_slew_per_s * self.step_s
+        low = m.fraction_of(max(-1.0, self._output - reach))
+        high = m.fraction_of(min(1.0, self._output + reach))
+        if low > bounds[1]:
+            return low, low
+        if high < bounds[0]:
+            return high, high
+        return max(low, bounds[0]), min(high, bounds[1])
+
+    def _follow(self, throttle: float) -> None:
+        """Move the autopilot's throttle output towards `throttle` as its slew does over one call period."""
+        slew = self.model.throttle_slew_per_s * self.call_period_s
+        if slew <= 0.0:
+            self._output = throttle
+        else:
+            self._output = min(max(throttle, self._output - slew), self._output + slew)
 
     def _slewed(self, steering: float) -> float:
         """`steering` moved at most one step's slew from the previous command."""
@@ -604,7 +647,21 @@ def _formulate(model: MotorboatModel, step_s: float, horizon: int, weights: tupl
         cost += w_steer * steer[k] ** 2
         cost += w_dthrottle * (throttle[k] - previous[0]) ** 2 + w_dsteer * (steer[k] - previous[1]) ** 2
         previous = (throttle[k], steer[k])
-    return {"x": z, "p": p, "f": cost, "g": steer[1:] - steer[:-1]}
+    g = steer[1:] - steer[:-1]
+    if m.throttle_slew_per_s > 0.0:  # the autopilot slews the throttle: so does the plan
+        g = ca.vertcat(g, throttle[1:] - throttle[:-1])
+    return {"x": z, "p": p, "f": cost, "g": g}
+
+
+def _change_row_bounds(model: MotorboatModel, step_s: float, horizon: int) -> tuple[FloatArray, FloatArray]:
+    """(lower, upper) bounds of the QP's change rows (`_formulate`'s g): each plan step's steering change within
+    steering_slew_per_s * step_s, then (with a throttle slew) its thrust-fraction change within throttle_slew_per_s *
+    step_s: exact ahead; astern, where a throttle change moves the thrust by reverse_thrust_fraction of it, the
+    plan may change faster than the autopilot (the first step is exact: MotorboatMpc.first_thrust_bounds)."""
+    steering = np.full(horizon - 1, model.steering_slew_per_s * step_s)
+    throttle = np.full(horizon - 1 if model.throttle_slew_per_s > 0.0 else 0, model.throttle_slew_per_s * step_s)
+    upper = np.concatenate((steering, throttle))
+    return -upper, upper
 
 
 def _predicted_speeds(model: MotorboatModel, step_s: float, z: ca.SX, u0: ca.SX) -> ca.SX:

@@ -51,7 +51,9 @@ class MotorboatMpcBatch:
         qp = self._qp.inputs
         qp["a"][:] = np.resize(first._qp.inputs["a"], qp["a"].size)  # the constant constraint matrix, per boat
         self._step = first.model.steering_slew_per_s * first.step_s  # steering change per plan step, at most
-        qp["lba"][:], qp["uba"][:] = -self._step, self._step
+        # The change rows' bounds (steering, then thrust with a throttle slew), per boat.
+        qp["lba"][:] = np.resize(first._qp.inputs["lba"], qp["lba"].size)
+        qp["uba"][:] = np.resize(first._qp.inputs["uba"], qp["uba"].size)
         self._p = self._data.inputs["p"].reshape(n, -1)
         self._lbx, self._ubx = qp["lbx"].reshape(n, -1), qp["ubx"].reshape(n, -1)
         self._x = self._qp.outputs["x"].reshape(n, -1)
@@ -126,6 +128,7 @@ class MotorboatMpcBatch:
                 p[:7] = (call.u0, call.r0, call.error, call.reference, direction, *c._previous)
                 p[7 : 7 + n] = c._bar
                 lbx[:n], ubx[:n] = call.bounds
+                lbx[0], ubx[0] = c.first_thrust_bounds(call.bounds)
                 previous = c._previous[1]
                 self._u0[k] = call.u0
             else:

@@ -75,8 +75,10 @@ CORE_PARAMS = (
     "MANUAL_OPTIONS",
     "MANUAL_STR_EXPO",
     "MOT_THR_MAX",
+    "MOT_SLEWRATE",
     *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
+DEFAULT_THROTTLE_SLEW_PER_S = 1.0  # MOT_SLEWRATE's default, 100 %/s (libraries/AR_Motors/AP_MotorsUGV.cpp)
 SKID_STEER_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
 MANUAL_SPEED_SCALING = 1  # MANUAL_OPTIONS bit 0: steering scaled down with speed (Rover/Parameters.cpp)
 RC_FIELDS = ("MIN", "TRIM", "MAX", "DZ", "REVERSED")
@@ -224,6 +226,16 @@ class AutopilotProfile:
         if value is None or not math.isfinite(value):
             return 1.0
         return min(max(float(int(value)), 30.0), 100.0) / 100.0
+
+    @property
+    def throttle_slew_per_s(self) -> float:
+        """MOT_SLEWRATE / 100: the fastest change of the throttle output the autopilot lets through, full-scale
+        units per s (AP_MotorsUGV::slew_limit_throttle, in MANUAL too; 0: none). Its default (100 %/s, 2 s from full
+        ahead to full astern) when not read: a boat's controller plans its braking with it."""
+        value = self.values.get("MOT_SLEWRATE")
+        if value is None or not math.isfinite(value):
+            return DEFAULT_THROTTLE_SLEW_PER_S
+        return max(float(int(value)), 0.0) / 100.0
 
     @property
     def turn_radius_m(self) -> float | None:

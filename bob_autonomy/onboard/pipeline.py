@@ -379,7 +379,8 @@ class MotorboatPipeline(BuoyPipeline):
         self.controllers = [MotorboatController(m) for m in each]
         step = max(dt_s, 0.5)  # the MPC plans in steps of at least 0.5 s (6 s ahead), called every dt_s
         budget = mpc_time_budget_s
-        self.mpcs = [MotorboatMpc(m, step_s=step, time_budget_s=budget) for m in each] if self.use_mpc else []
+        mpc = {"step_s": step, "time_budget_s": budget, "call_period_s": dt_s}
+        self.mpcs = [MotorboatMpc(m, **mpc) for m in each] if self.use_mpc else []
         # In simulated time (no budget) a fleet's solves are made together, with the same results.
         self.motorboat_batch = MotorboatMpcBatch(self.mpcs) if MotorboatMpcBatch.fits(self.mpcs) else None
         self.last_commands: list[MotorboatCommand | None] = [None] * n

@@ -338,14 +338,17 @@ class Vessel(VesselLinks, AutopilotDriving):
             logger.info(
                 "vessel model: top speed %s m/s at full throttle, %s", top, "on the ground" if on_ground else "afloat"
             )
-        if c.kind == MOTORBOAT and (c.top_speed_mps is None or profile.turn_radius_m is not None or capped):
-            # The autopilot says how fast full throttle goes (SPEED_MAX or CRUISE_*) and how tight it turns
-            # (TURN_RADIUS): the MPC plans with that boat.
+        if c.kind == MOTORBOAT:
+            # The autopilot says how fast full throttle goes (SPEED_MAX or CRUISE_*), how tight it turns
+            # (TURN_RADIUS) and how fast it lets the throttle change (MOT_SLEWRATE): the MPC plans with that boat.
             top = min(max(c.top_speed_mps or speed or 2.0, 0.1), 50.0)  # what MotorboatModel takes
-            model = MotorboatModel.for_top_speed(top, profile.turn_radius_m)
+            model = MotorboatModel.for_top_speed(top, profile.turn_radius_m, profile.throttle_slew_per_s)
             self.pipeline = self.body.pipeline = motorboat_pipeline(self.config, model)
-            radius = model.turning_radius_m
-            logger.info("motorboat model: %.2f m/s at full throttle, turning radius %.2f m", top, radius)
+            radius, slew = model.turning_radius_m, 100 * model.throttle_slew_per_s
+            logger.info(
+                "motorboat model: %.2f m/s at full throttle, turning radius %.2f m, throttle slew %.0f %%/s",
+                top, radius, slew,
+            )  # fmt: skip
         if c.kind == EBOT and c.top_speed_mps is None and speed is not None:
             # Wheels at full throttle move this fast (an eBot's 0.2 m/s is not a rover's): commands scale to it.
             self.max_actuator = speed

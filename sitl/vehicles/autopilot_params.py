@@ -151,6 +151,14 @@ def rover_parameter_table(kind: str, system_id: int, gcs_system_id: int = 255) -
     return [ParamSpec(s.name, overrides.get(s.name, s.default), s.mav_type, s.low, s.high, s.source) for s in specs]
 
 
+def parameter_default(kind: str, name: str) -> float:
+    """The default of parameter `name` on a simulated autopilot of `kind` (KeyError for a name it does not have)."""
+    for spec in rover_parameter_table(kind, 1):
+        if spec.name == name:
+            return float(spec.default)
+    raise KeyError(f"the simulated {kind} autopilot has no parameter {name!r}")
+
+
 def stored_value(value: float, mav_type: int) -> float:
     """`value` as ArduPilot stores it in a parameter of `mav_type` (AP_Param.cpp set_float: integers get 0.01 added
     toward the value's sign, are truncated and clamped to the type's range)."""

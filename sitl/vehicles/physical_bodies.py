@@ -20,6 +20,7 @@ from bob_autonomy.control.motorboat_control import MotorboatModel
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation.simple_estimator import PoseEstimate
 from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
+from sitl.vehicles.autopilot_params import parameter_default
 from sitl.vehicles.bodies import BODY_SPECS, EBOT_SONAR_ANGLES_RAD, KinematicBodies
 from sitl.vehicles.bodies import EBOT as EBOT_KIND
 from sitl.vehicles.mavlink_vehicle import BUOY, EBOT, MOTORBOAT
@@ -98,7 +99,10 @@ class PhysicalBodies(KinematicBodies):
         boats = p.motorboat_params
         self.max_speed[m] = [q.top_speed_mps for q in boats]
         self.turning_radius[m] = [q.turning_radius_m for q in boats]
-        models = [MotorboatModel.for_top_speed(q.top_speed_mps, q.turning_radius_m) for q in boats]
+        # Over MAVLink the simulated autopilot slews the throttle (MOT_SLEWRATE), and the vessel plans with the
+        # slew it reads (bob_autonomy.onboard.autopilot.AutopilotProfile.throttle_slew_per_s); the direct link has none.
+        slew = parameter_default(MOTORBOAT, "MOT_SLEWRATE") / 100.0 if link == "mavlink" else 0.0
+        models = [MotorboatModel.for_top_speed(q.top_speed_mps, q.turning_radius_m, slew) for q in boats]
         self.motorboat_vessels = MotorboatPipeline(m.size, frame, models, p.motorboat_thrust_fraction, **options)
         self.link = link
         self._mavlink_light: tuple | None = None  # (t, rows, light) decoded with this step's range finders
