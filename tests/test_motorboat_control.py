@@ -184,3 +184,58 @@ def test_the_model_rescales_to_a_top_speed_and_refuses_nonsense() -> None:
             MotorboatModel.for_top_speed(bad)
     with pytest.raises(ValueError):
         MotorboatModel(turning_radius_m=0.0)
+
+
+SLEW_PER_S = 1.0  # ArduPilot's MOT_SLEWRATE default, 100 %/s: 2 s from full ahead to full astern
+SLEWED = MotorboatModel.for_top_speed(TOP_SPEED, RADIUS, throttle_slew_per_s=SLEW_PER_S)
+
+
+def _through_a_slewing_autopilot(model: MotorboatModel, dt: float = 0.5):
+    """Drive the simulated boat for 20 s ahead (a wish of 1.5 m/s), then 15 s with a slow wish astern, through an
+    autopilot that moves its throttle output at most SLEW_PER_S per s towards each command (AP_MotorsUGV). Returns
+    (command throttle, output before it) per step and the plans."""
+    mpc = MotorboatMpc(model, step_s=dt, time_budget_s=math.inf)
+    boat = MotorboatDynamics(params_for(TOP_SPEED, RADIUS), np.zeros((1, 2)), np.zeros(1), np.random.default_rng(3))
+    output, steps, plans = 0.0, [], []
+    for k in range(round(35.0 / dt)):
+        wish = np.array([1.5, 0.0]) if k * dt < 20.0 else np.array([-0.6, 0.0])
+        cmd = mpc.solve(wish, boat.velocity_mps[0], np.zeros(2), boat.heading_rad[0], boat.yaw_rate_radps[0])
+        steps.append((cmd.throttle, output))
+        plans.append(mpc.last_plan)
+        output = min(max(cmd.throttle, output - SLEW_PER_S * dt), output + SLEW_PER_S * dt)
+        boat.step(np.array([[output, cmd.steering]]), dt)
+    return np.array(steps), plans, boat
+
+
+def test_a_boat_that_knows_the_throttle_slew_asks_only_for_what_the_autopilot_can_reach() -> None:
+    steps, plans, boat = _through_a_slewing_autopilot(SLEWED)
+    reach = SLEW_PER_S * 0.5
+    assert np.abs(steps[:, 0] - steps[:, 1]).max() <= reach + 1e-12  # the output is what was asked, every step
+    for plan in filter(lambda p: p is not None, plans):  # and so is every step planned (thrust fractions)
+        assert np.abs(np.diff(plan[:, 0])).max() <= reach + 1e-6
+    assert steps[:, 0].max() == pytest.approx(1.0) and steps[-1, 0] < -0.2  # full ahead, then astern
+    assert boat.velocity_mps[0, 0] < 0.0
+    # A controller that does not know the slew asks for jumps the autopilot spreads over seconds.
+    blind, _, _ = _through_a_slewing_autopilot(MODEL)
+    assert np.abs(blind[:, 0] - blind[:, 1]).max() > 2 * reach
+
+
+def test_the_first_planned_thrust_is_what_the_slew_reaches_from_the_output_now() -> None:
+    mpc = MotorboatMpc(SLEWED, step_s=0.5, call_period_s=0.1)
+    assert mpc.first_thrust_bounds((-0.5, 1.0)) == (-0.25, 0.5)  # from 0: throttle -0.5..0.5, astern at half thrust
+    mpc._follow(1.0)  # five calls of 0.1 s take the output from 0 to full ahead
+    assert mpc._output == pytest.approx(0.1)
+    for _ in range(9):
+        mpc._follow(1.0)
+    assert mpc._output == pytest.approx(1.0)
+    assert mpc.first_thrust_bounds((-0.5, 1.0)) == pytest.approx((0.5, 1.0))
+    assert mpc.first_thrust_bounds((-0.5, 0.3)) == pytest.approx((0.5, 0.5))  # out of reach: the nearest it gets
+    for _ in range(30):
+        mpc._follow(-1.0)
+    assert mpc.first_thrust_bounds((0.0, 1.0)) == pytest.approx((-0.25, -0.25))
+    assert MotorboatMpc(MODEL).first_thrust_bounds((-0.5, 0.3)) == (-0.5, 0.3)  # no slew: the bounds as they are
+    for bad in (-0.1, math.nan, math.inf):
+        with pytest.raises(ValueError, match="throttle_slew_per_s"):
+            MotorboatModel(throttle_slew_per_s=bad)
+    with pytest.raises(ValueError, match="call_period_s"):
+        MotorboatMpc(SLEWED, call_period_s=0.0)

@@ -52,16 +52,20 @@ def assert_same(batched, alone) -> None:
 def assert_same_state(batch: MotorboatMpcBatch, alone: list[MotorboatMpc]) -> None:
     for mine, theirs in zip(batch.controllers, alone, strict=True):
         assert (mine.solves, mine.fallbacks, mine._previous) == (theirs.solves, theirs.fallbacks, theirs._previous)
+        assert mine._output == theirs._output
         np.testing.assert_array_equal(mine._bar, theirs._bar)
         assert (mine.last_plan is None) == (theirs.last_plan is None)
         if mine.last_plan is not None:
             np.testing.assert_array_equal(mine.last_plan, theirs.last_plan)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_the_batch_gives_each_boat_what_its_own_solve_gives(seed: int) -> None:
+SLEWED = MotorboatModel.for_top_speed(2.0, 4.0, throttle_slew_per_s=1.0)  # ArduPilot's MOT_SLEWRATE default
+
+
+@pytest.mark.parametrize(("seed", "model"), [(s, MotorboatModel()) for s in range(5)] + [(5, SLEWED), (6, SLEWED)])
+def test_the_batch_gives_each_boat_what_its_own_solve_gives(seed: int, model: MotorboatModel) -> None:
     rng = np.random.default_rng(seed)
-    batch, alone = MotorboatMpcBatch(fleet()), fleet()
+    batch, alone = MotorboatMpcBatch(fleet(model=model)), fleet(model=model)
     for step in range(40):
         args = random_step(rng)
         t_s = 0.5 * step

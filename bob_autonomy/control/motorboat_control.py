@@ -575,7 +575,7 @@ class MotorboatMpc:
         else:
             ok, fallback, status = True, False, "optimal"
             fraction, steering = float(outcome[0, 0]), float(outcome[0, 1])
-        bounds = call.bounds
+        bounds = self.first_thrust_bounds(call.bounds)  # what the autopilot's throttle slew can reach too
         fraction = min(max(fraction, bounds[0]), bounds[1])
         steering = self._slewed(min(max(steering, -1.0), 1.0))
         self._previous = (fraction, steering)
