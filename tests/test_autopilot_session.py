@@ -192,6 +192,17 @@ def test_steering_speed_scaling_in_manual_is_a_warning_with_what_to_change() -> 
     assert "MANUAL_OPTIONS" in text and "clear bit 0" in text
 
 
+SLEW_RATES = [(None, 1.0), (math.nan, 1.0), (100, 1.0), (250, 2.5), (0, 0.0), (-5, 0.0)]
+
+
+@pytest.mark.parametrize(("slew_rate", "per_s"), SLEW_RATES)
+def test_the_throttle_slew_is_mot_slewrate_per_second(slew_rate: float | None, per_s: float) -> None:
+    """AP_MotorsUGV::get_slew_limited_throttle moves the output at most MOT_SLEWRATE % of full throttle per s (0 or
+    less: no limit); ArduPilot's default, 100, when the parameter was not read."""
+    values = {} if slew_rate is None else {"MOT_SLEWRATE": slew_rate}
+    assert AutopilotProfile(values).throttle_slew_per_s == per_s
+
+
 @pytest.mark.parametrize(("thr_max", "ceiling"), [(None, 1.0), (100, 1.0), (50, 0.5), (10, 0.3), (150, 1.0)])
 def test_the_throttle_ceiling_is_mot_thr_max_as_ardupilot_keeps_it(thr_max: float | None, ceiling: float) -> None:
     """AP_MotorsUGV::sanity_check_parameters keeps MOT_THR_MAX within 30-100 %; the demand is clipped to it."""

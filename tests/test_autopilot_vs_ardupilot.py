@@ -62,6 +62,7 @@ def _ask(conn, beat) -> dict:
         "ARMING_CHECK",
         "MANUAL_STR_EXPO",
         "MOT_THR_MAX",
+        "MOT_SLEWRATE",
         "SERVO16_FUNCTION",
         "SERVO32_FUNCTION",
     ]

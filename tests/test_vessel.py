@@ -125,6 +125,23 @@ def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(st
     assert sent and all(abs(c[3] - 1500) <= half[0] and abs(c[4] - 1500) <= half[1] for c in sent)
 
 
+@pytest.mark.parametrize(("slew_rate", "per_s"), [(None, 1.0), (40, 0.4)])
+def test_a_motorboat_plans_with_the_throttle_slew_its_autopilot_has(slew_rate: int | None, per_s: float) -> None:
+    """MOT_SLEWRATE (default 100 %/s) limits how fast ArduPilot moves the throttle output (AP_MotorsUGV): the
+    vessel reads it at start and its motorboat MPC plans with it."""
+    boat = StandInVehicle(kind="motorboat")
+    if slew_rate is not None:
+        assert boat.vehicle.params.set("MOT_SLEWRATE", slew_rate)
+    boat.start()
+    try:
+        vessel = Vessel(_config(boat.port, kind="motorboat", controller="mpc"), clock=ScaledWallClock(SCALE))
+        stats = vessel.run(duration_s=6.0)
+    finally:
+        boat.close()
+    assert stats.commands > 10
+    assert [mpc.model.throttle_slew_per_s for mpc in vessel.pipeline.mpcs] == [per_s]
+
+
 def test_vessel_stops_and_raises_an_alarm_when_its_vehicle_goes_silent(stand_in: StandInVehicle) -> None:
     vessel = Vessel(_config(stand_in.port, heartbeat_timeout_s=2.0), clock=ScaledWallClock(SCALE))
     timer = threading.Timer(1.5, stand_in.muted.set)  # wall s: ~7.5 clock s into the run

@@ -17,15 +17,16 @@ SCALE = 5.0  # the vessel's and the stand-in vehicle's clocks run 5x wall time
 
 
 class StandInVehicle(threading.Thread):
-    """SimulatedVehicle on a UDP socket moving a point-mass buoy (1 m/s at full thrust), GPS 5 Hz, compass 10 Hz."""
+    """SimulatedVehicle on a UDP socket moving a point-mass buoy (1 m/s at full thrust), GPS 5 Hz, compass 10 Hz.
+    kind: the autopilot's frame ("buoy", or "motorboat": its first output then moves the point mass 1/45 m/s)."""
 
-    def __init__(self, start_xy=(0.0, 0.0), system_id: int = 1) -> None:
+    def __init__(self, start_xy=(0.0, 0.0), system_id: int = 1, kind: str = "buoy") -> None:
         super().__init__(daemon=True)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.01)
         self.port = self.sock.getsockname()[1]
-        self.vehicle = SimulatedVehicle(system_id, "buoy", 45.0, failsafe_s=1.0)
+        self.vehicle = SimulatedVehicle(system_id, kind, 45.0 if kind == "buoy" else 1.0, failsafe_s=1.0)
         self.frame = LocalFrame(*ORIGIN)
         self.clock = ScaledWallClock(SCALE)
         self.position = np.array(start_xy, dtype=float)

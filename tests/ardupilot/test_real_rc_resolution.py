@@ -6,10 +6,11 @@ the vessel meant, ahead, 5 % astern and 0.4 % astern. Before, the vessel pre-fli
 negative wish, which put the rudder on the other side at 5 % astern (and at 0.4 %, read as 0, on the side meant
 except on the overrides that carried -1 %) (docs/ardupilot.md).
 
-Three settings a boat owner may have changed, also read from the autopilot: MANUAL_STR_EXPO (ArduPilot shapes the
+Four settings a boat owner may have changed, also read from the autopilot: MANUAL_STR_EXPO (ArduPilot shapes the
 steering in MANUAL; the vessel sends the inverse, so the rudder is the one asked for), MOT_THR_MAX (the throttle is
-clipped to it; the vessel plans within it) and throttle left / right on outputs other than SERVO1 / SERVO3 (still
-skid steering: AP_MotorsUGV::have_skid_steering looks at every output).
+clipped to it; the vessel plans within it), MOT_SLEWRATE (the throttle output ramps at that rate; a motorboat's
+MPC plans with it) and throttle left / right on outputs other than SERVO1 / SERVO3 (still skid steering:
+AP_MotorsUGV::have_skid_steering looks at every output).
 
 Skipped unless ARDUPILOT_SITL names a built `ardurover`. Judged by SERVO_OUTPUT_RAW on the autopilot's SERIAL1.
 """
@@ -101,6 +102,29 @@ def test_the_throttle_is_clipped_to_mot_thr_max_which_the_vessel_reads(tmp_path)
         assert all((servos[2] - trim) / (high - trim) == pytest.approx(0.5, abs=0.01) for servos in outputs[-5:]), [
             servos[2] for servos in outputs
         ]
+
+
+def test_the_throttle_output_ramps_at_mot_slewrate_which_the_vessel_reads(tmp_path) -> None:
+    """MOT_SLEWRATE 50 (%/s): asked for full throttle from none, ArduPilot's throttle output (SERVO3) takes 2 s to
+    get there (AP_MotorsUGV::slew_limit_throttle, in MANUAL too). The vessel reads the rate, and its motorboat MPC
+    plans its speed changes, braking above all, with it (tests/test_motorboat_control.py)."""
+    with RoverSitl(BINARY, "motorboat", tmp_path, params={"MOT_SLEWRATE": 50}) as sitl:
+        sitl.wait_initialised()
+        link, session = _session_on(sitl, MOTORBOAT, ["SERVO3_MIN", "SERVO3_TRIM", "SERVO3_MAX"])
+        assert session.profile.throttle_slew_per_s == 0.5
+        trim, high = session.params["SERVO3_TRIM"], session.params["SERVO3_MAX"]
+        _outputs_while(sitl, link, session, 0.0, 0.0)  # at rest
+        start = time.monotonic()
+        while time.monotonic() - start < 4.0:
+            link.write(session.override(0.0, 1.0))
+            time.sleep(0.1)
+        link.write(session.override(0.0, 0.0))
+        ramp = [(t - start, (servos[2] - trim) / (high - trim)) for t, servos in sitl.seen.servos if t > start]
+        assert len(ramp) >= 10, "no SERVO_OUTPUT_RAW from the autopilot"
+        at_full = [t for t, fraction in ramp if fraction > 0.98]
+        assert at_full and 1.9 <= at_full[0] <= 2.8, ramp  # 0.5 of full throttle per s, plus the link's delays
+        assert all(fraction <= 0.5 * t + 0.03 for t, fraction in ramp), ramp  # never faster than the slew
+        assert any(0.2 <= fraction <= 0.8 for _, fraction in ramp), ramp  # a ramp, not a step
 
 
 def test_throttle_left_and_right_on_other_outputs_still_turn_the_way_meant_astern(tmp_path) -> None:
