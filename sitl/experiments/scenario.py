@@ -158,7 +158,8 @@ class Start(Model):
     """Where a group starts: uniformly at random in `box`, or on the sites of a `lattice`.
 
     heading_deg: in degrees, or "random". min_separation_m: least distance
-    between random starts in the box, m (a lattice is spaced by its `spacing_m`).
+    between random starts in the box and from every agent of the groups before
+    this one, m (a lattice is spaced by its `spacing_m`).
     """
 
     box: Box | None = None

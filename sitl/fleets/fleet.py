@@ -42,8 +42,10 @@ def build_world(scenario: Scenario, rng: np.random.Generator) -> World:
 
 
 def initial_poses(scenario: Scenario, world: World, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
-    """Start positions (N, 2) m and headings (N,) rad: drawn in each group's box, or on its lattice."""
-    positions, headings = [], []
+    """Start positions (N, 2) m and headings (N,) rad: drawn in each group's box (at least its min_separation_m from
+    each other and from every agent of the groups before it), or on its lattice."""
+    positions: list[FloatArray] = []
+    headings = []
     for group in scenario.groups:
         box, lattice = group.start.box, group.start.lattice
         if lattice is not None:
@@ -51,7 +53,9 @@ def initial_poses(scenario: Scenario, world: World, rng: np.random.Generator) ->
             if not world.inside_rooms(placed).all():
                 raise ScenarioError(f"group {group.name!r}: lattice sites fall outside the rooms")
         else:
-            placed = _sample_separated(group.count, box.min, box.max, group.start.min_separation_m, world, rng)
+            taken = np.concatenate(positions) if positions else np.empty((0, 2))
+            separation = group.start.min_separation_m
+            placed = _sample_separated(group.count, box.min, box.max, separation, world, rng, taken)
         positions.append(placed)
         if group.start.heading_deg == "random":
             headings.append(rng.uniform(-np.pi, np.pi, group.count))
@@ -86,8 +90,11 @@ def lattice_sites(n: int, center, spacing_m: float, kind: str = "triangular", an
     return chosen @ rotation.T + np.asarray(center, dtype=float)
 
 
-def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.random.Generator) -> FloatArray:
-    """n points uniform in a box, inside the rooms, at least `separation` m apart (rejection).
+def _sample_separated(
+    n: int, lo, hi, separation: float, world: World, rng: np.random.Generator, taken: FloatArray | None = None
+) -> FloatArray:
+    """n points uniform in a box, inside the rooms, at least `separation` m apart and from the points `taken`
+    (k, 2) m (agents already placed; rejection).
 
     Points are added one by one (200 n candidates); a draw that jams (no room left for the next point, as 16
     points 80 m apart in a 360 m box can at some seeds) starts again from scratch with the same generator, up
@@ -100,13 +107,18 @@ def _sample_separated(n: int, lo, hi, separation: float, world: World, rng: np.r
             candidate = rng.uniform(lo, hi)
             if not world.inside_rooms(candidate[None])[0]:
                 continue
-            if separation and points and np.min(np.hypot(*(np.array(points) - candidate).T)) < separation:
-                continue
+            if separation:
+                near = np.array(points).reshape(-1, 2)
+                if taken is not None:
+                    near = np.concatenate((taken, near))
+                if len(near) and np.min(np.hypot(*(near - candidate).T)) < separation:
+                    continue
             points.append(candidate)
         if len(points) == n:
             return np.array(points)
     raise ScenarioError(
-        f"cannot place {n} agents {separation} m apart in box {lo}..{hi} ({START_DRAWS} tries): "
+        f"cannot place {n} agents {separation} m apart (and from the agents placed before them) in box {lo}..{hi} "
+        f"({START_DRAWS} tries): "
         "lower min_separation_m, enlarge the start box or start fewer agents there"
     )
 
