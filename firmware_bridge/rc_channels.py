@@ -105,8 +105,11 @@ class RcChannelRange:
         if span <= 0:
             return self.trim_us
         step = -((-abs(units) * span) // full_scale)  # ceil: the first PWM read as at least |units| units
-        candidates = [edge + sign * step, edge + sign * (step - 1)] if step > 1 else [edge + sign * step]
-        best = min(candidates, key=lambda pwm: abs(self._raw_units(pwm, full_scale) - target))
+        best = edge + sign * step
+        if step > 1:  # the nearer of the two PWMs about the unit (the first on a tie)
+            other = edge + sign * (step - 1)
+            if abs(self._raw_units(other, full_scale) - target) < abs(self._raw_units(best, full_scale) - target):
+                best = other
         return min(self.max_us, max(self.min_us, best))
 
     def _raw_units(self, pwm_us: int, full_scale: int) -> int:

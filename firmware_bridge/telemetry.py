@@ -43,14 +43,16 @@ def _cm_s(v_mps: float) -> int:
 def _uint16s(values: Sequence[int], count: int) -> list[int]:
     """`count` values as uint16 fields: the first `count` of `values` as integers clamped to 0..UINT16_MAX, zeros
     after them (the clamping only done when some value needs it: these go out several times a second)."""
-    out = [int(v) for v in list(values)[:count]]
+    out = [int(v) for v in values[:count]] if isinstance(values, list) else [int(v) for v in list(values)[:count]]
     if out and (min(out) < 0 or max(out) > UINT16_MAX):
         out = [max(0, min(UINT16_MAX, v)) for v in out]
     return out + [0] * (count - len(out))
 
 
 def _int16(value: float) -> int:
-    return int(max(-INT16_MAX, min(INT16_MAX, round(value))))
+    """value rounded (halves to even) and clamped to +-INT16_MAX."""
+    v = round(value)
+    return -INT16_MAX if v < -INT16_MAX else INT16_MAX if v > INT16_MAX else int(v)
 
 
 class TelemetryEncoder:

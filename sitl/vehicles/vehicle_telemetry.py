@@ -43,7 +43,7 @@ def encode_readings(
     if readings.imu is not None:
         r = readings.imu
         for i, row in vehicle_rows(r.agents):
-            vehicles[row].observe("imu", t_s, tuple(r.accel_body_mps2[i]), float(r.gyro_z_radps[i]))
+            vehicles[row].observe("imu", t_s, tuple(r.accel_body_mps2[i].tolist()), float(r.gyro_z_radps[i]))
             if direct(row):
                 frames[row] += vehicles[row].telemetry.scaled_imu(t_s, r.accel_body_mps2[i], r.gyro_z_radps[i])
     if readings.compass is not None:
