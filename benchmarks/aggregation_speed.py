@@ -2,7 +2,9 @@
 
 Dynamics, wind and gusts, sensors, the vessels' estimators and controllers,
 the lossy radio and the behaviours, all in the loop; recording and figures
-excluded. Prints one JSON line (and the kinematic figure as a baseline).
+excluded. Prints one JSON line (and the kinematic figure as a baseline). The
+same physics run over the direct link (no MAVLink) is timed too: its figure is
+the most any speed-up of the MAVLink path alone could reach.
 
     python benchmarks/aggregation_speed.py [--seconds 300] [--profile]
 
@@ -29,10 +31,11 @@ from sitl.vehicles.vehicle_physics import VehiclePhysics
 from sitl.vehicles.vehicle_transport import MavlinkTransport
 
 
-def realtime_factor(fidelity: str, simulated_s: float) -> tuple[float, float, float]:
+def realtime_factor(fidelity: str, simulated_s: float, link: str = "mavlink") -> tuple[float, float, float]:
     """(simulated seconds per wall second, wall ms per step, CPU ms per step). The CPU time (process_time) is the
-    figure to compare across runs on a shared or noisy host, where wall time also counts other processes."""
-    scenario = load_scenario("aggregation").with_overrides(fidelity=fidelity)
+    figure to compare across runs on a shared or noisy host, where wall time also counts other processes. link:
+    the vehicle link of a physics run ("mavlink", the packaged one, or "direct")."""
+    scenario = load_scenario("aggregation").with_overrides(fidelity=fidelity, link=link)
     fleet = LockstepFleet(scenario)
     steps = round(simulated_s / scenario.dt_s)
     start, cpu = time.perf_counter(), time.process_time()
@@ -100,6 +103,7 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true", help="also print where a step's time goes")
     args = parser.parse_args()
     physics, physics_ms, physics_cpu_ms = realtime_factor("physics", args.seconds)
+    direct, direct_ms, _ = realtime_factor("physics", args.seconds, link="direct")
     kinematic, kinematic_ms, kinematic_cpu_ms = realtime_factor("kinematic", args.seconds)
     print(
         json.dumps(
@@ -114,6 +118,9 @@ def main() -> None:
                 "kinematic_ms_per_step": round(kinematic_ms, 3),
                 "kinematic_cpu_ms_per_step": round(kinematic_cpu_ms, 3),
                 "physics_cost_ratio": round(kinematic / physics, 2),
+                "direct_link_sim_s_per_wall_s": round(direct, 1),
+                "direct_link_ms_per_step": round(direct_ms, 3),
+                "mavlink_share_of_step": round(1.0 - direct_ms / physics_ms, 2),
             }
         )
     )
