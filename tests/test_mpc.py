@@ -219,7 +219,8 @@ def test_a_real_solver_failure_is_a_counted_fallback_naming_the_solver() -> None
     assert result.status.startswith(f"fallback: _SolveError: {buoy.solver}: ")
     assert in_polygon(buoy, result.thrust_world_n, 30.0)
     ebot = DiffDriveMpc(time_budget_s=RELAXED_BUDGET_S)
-    ebot._qp.inputs["uba"][:] = -2.0  # below lba, whatever forward_only sets
+    infeasible = (np.full(ebot.horizon, 1.0), np.full(ebot.horizon, -2.0))  # every row's upper bound below its lower
+    ebot._row_bounds = lambda lowest_forward: infeasible
     result = ebot.solve(np.array([0.0, 0.2]), 0.0)
     assert not result.ok and ebot.fallbacks == 1 and ebot.solver in result.status
     assert result.wheels_mps[1] > result.wheels_mps[0]  # the heuristic turns left

@@ -77,6 +77,18 @@ class DiffDriveMpc:
     form="nonlinear": the unicycle model as is, casadi nlpsol (ipopt or
     sqpmethod), warm-started from the previous plan shifted by one step.
 
+    throttle_slew_per_s: the autopilot's throttle slew (MOT_SLEWRATE / 100,
+    full-scale units per s; 0: none). A skid-steer rover behind ArduPilot gets
+    throttle = (l + r) / 2 (scaled) and steering = (l - r) / 2, and slews the
+    throttle only (AP_MotorsUGV::output: slew_limit_throttle, then the skid-steer
+    mix). With a slew the plan knows it: each step's throttle changes by at most
+    slew x dt_s from the step before (one linear row per step), the first step's
+    from the autopilot's output now, which the controller follows as the
+    autopilot does (it is called every dt_s); every command, the fallback's too,
+    is moved within that reach by shifting both wheels alike (the steering
+    kept). `sent` tells it the wheels actually sent when a caller overrode its
+    command.
+
     Measured (benchmarks/mpc_solve.py, this machine): closed loop on an exact
     unicycle, dt 0.1 s, horizon 10, 0.2 m/s wished; mean |v - v_desired| (m/s)
     over the 3 s after the wished direction changes; solve time of the call.
@@ -117,9 +129,13 @@ class DiffDriveMpc:
         solver: str | None = None,
         nlp_solver: str = "ipopt",
         time_budget_s: float = 0.02,
+        throttle_slew_per_s: float = 0.0,
     ) -> None:
         if wheel_base_m <= 0.0 or max_wheel_speed_mps <= 0.0 or dt_s <= 0.0 or horizon < 1:
             raise ValueError("need wheel_base_m, max_wheel_speed_mps, dt_s > 0 and horizon >= 1")
+        if not (math.isfinite(throttle_slew_per_s) and throttle_slew_per_s >= 0.0):
+            raise ValueError(f"throttle_slew_per_s must be finite and >= 0 (0: none), got {throttle_slew_per_s!r}")
+        self.throttle_slew_per_s = float(throttle_slew_per_s)
         self.form = form or self.DEFAULT_FORM
         if self.form not in ("linear", "nonlinear"):
             raise ValueError(f"form must be 'linear' or 'nonlinear', not {self.form!r}")
@@ -138,6 +154,8 @@ class DiffDriveMpc:
         self._last_wheels = np.zeros(2)
         self._sign = 1.0
         self._plan = np.zeros(2 * self.horizon)
+        self._output = 0.0  # the autopilot's throttle output as its slew follows our commands (scaled)
+        self._output_before = 0.0  # ... before the last command (what `sent` follows from again)
         if self.form == "linear":
             self._build_linear()
         else:
@@ -148,7 +166,7 @@ class DiffDriveMpc:
 
     def _model(self, linear: bool) -> dict[str, ca.SX]:
         """Cost of the scaled wheel plan z (2N,) given p = (d (2,) in the heading frame, z_prev (2,), sbar)."""
-        return _ebot_problem(*self._tuning(), linear)
+        return _ebot_problem(*self._tuning(), linear, self.throttle_slew_per_s > 0.0)
 
     def _tuning(self) -> tuple[float, float, float, int, float, float]:
         return (
@@ -162,14 +180,14 @@ class DiffDriveMpc:
 
     def _build_linear(self) -> None:
         """This controller's buffers on the QP's casadi Functions (built once per tuning and shared by a fleet)."""
-        self.problem, data, conic, constraint_values = _ebot_qp_functions(*self._tuning(), self.solver)
+        slewed = self.throttle_slew_per_s > 0.0
+        self.problem, data, conic, constraint_values = _ebot_qp_functions(*self._tuning(), self.solver, slewed)
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         self._qp.inputs["a"][:] = constraint_values
         self._qp.inputs["lbx"][:] = -1.0
         self._qp.inputs["ubx"][:] = 1.0
-        self._qp.inputs["lba"][:] = -1.0  # inactive (wheels within +-1); 0 when forward only
-        self._qp.inputs["uba"][:] = 1.0
+        self._qp.inputs["lba"][:], self._qp.inputs["uba"][:] = self._row_bounds(-1.0)  # see _row_bounds
 
     def _build_nonlinear(self) -> None:
         problem = self._model(linear=False)
@@ -192,8 +210,6 @@ class DiffDriveMpc:
         self._nlp = ca.nlpsol("ebot_mpc_nlp", self.nlp_solver, problem, options)
         self._lbx = -np.ones(2 * self.horizon)
         self._ubx = np.ones(2 * self.horizon)
-        self._lbg = -np.ones(self.horizon)
-        self._ubg = np.ones(self.horizon)
         self.problem = problem
 
     def reset(self) -> None:
@@ -201,6 +217,50 @@ class DiffDriveMpc:
         self._last_wheels = np.zeros(2)
         self._plan = np.zeros(2 * self.horizon)
         self._sign = 1.0
+        self._output = self._output_before = 0.0
+
+    def _row_bounds(self, lowest_forward: float) -> tuple[FloatArray, FloatArray]:
+        """Bounds of the constraint rows: each step's scaled forward speed (the throttle) at least lowest_forward
+        (-1: none, 0: forward only), then with a throttle slew each step's change from the step before within
+        slew x dt_s, the first step's from the autopilot's output now. Where forward only asks for more than the
+        slew reaches by a step (a robot still backing up), that step gets what the slew reaches: the plan stays
+        feasible (a ramp at the slew from the output is)."""
+        lower, upper = np.full(self.horizon, float(lowest_forward)), np.ones(self.horizon)
+        if self.throttle_slew_per_s <= 0.0:
+            return lower, upper
+        reach, out = self.throttle_slew_per_s * self.dt_s, self._output
+        upper[0] = min(1.0, out + reach)
+        lower[0] = min(max(lowest_forward, out - reach), upper[0])
+        ramp = out + reach * np.arange(2, self.horizon + 1)  # the most the slew reaches by steps 1..N-1
+        lower[1:] = np.minimum(lower[1:], ramp)
+        change = np.full(self.horizon - 1, reach)
+        return np.concatenate((lower, -change)), np.concatenate((upper, change))
+
+    def _within_reach(self, wheels: FloatArray) -> FloatArray:
+        """`wheels` (m/s) shifted alike (the steering kept) so that their throttle is within one step of slew from
+        the autopilot's output now, as far as the wheel limits allow; unchanged without a slew."""
+        if self.throttle_slew_per_s <= 0.0:
+            return wheels
+        vmax, reach = self.max_wheel_speed_mps, self.throttle_slew_per_s * self.dt_s
+        throttle = 0.5 * (wheels[0] + wheels[1]) / vmax
+        shift = min(max(throttle, self._output - reach), self._output + reach) - throttle
+        return _clipped(wheels + shift * vmax, vmax) if shift != 0.0 else wheels
+
+    def _follow(self, wheels: FloatArray) -> None:
+        """The autopilot's throttle output after one call period (dt_s) of its slew towards `wheels`' throttle."""
+        self._output_before = out = self._output
+        throttle = 0.5 * (wheels[0] + wheels[1]) / self.max_wheel_speed_mps
+        if self.throttle_slew_per_s <= 0.0:
+            self._output = throttle
+            return
+        reach = self.throttle_slew_per_s * self.dt_s
+        self._output = min(max(throttle, out - reach), out + reach)
+
+    def sent(self, wheels_mps: FloatArray) -> None:
+        """The wheels (m/s) the robot was sent instead of the last `solve`'s command: the autopilot's throttle
+        output follows them (the input-change cost still starts from this controller's own last command)."""
+        self._output = self._output_before
+        self._follow(_clipped(wheels_mps, self.max_wheel_speed_mps))
 
     def _parameters(
         self, desired_world: FloatArray, heading: float, previous: FloatArray, forward_only: bool = False
@@ -224,15 +284,15 @@ class DiffDriveMpc:
             warm = np.clip(warm, -1.0, 1.0)
             backwards = np.minimum(0.0, 0.5 * (warm[0::2] + warm[1::2]))
             warm -= np.repeat(backwards, 2)  # a feasible start: the backward part of each step removed
+        lbg, ubg = self._row_bounds(lowest_forward)
         if self.form == "linear":
             self._data.inputs["p"][:] = parameters
             self._data()
-            self._qp.inputs["lba"][:] = lowest_forward
+            self._qp.inputs["lba"][:], self._qp.inputs["uba"][:] = lbg, ubg
             self._qp.inputs["x0"][:] = warm
             self._qp()  # raises _SolveError when not solved
             return self._qp.outputs["x"].copy()
-        self._lbg[:] = lowest_forward
-        solution = self._nlp(x0=warm, p=parameters, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
+        solution = self._nlp(x0=warm, p=parameters, lbx=self._lbx, ubx=self._ubx, lbg=lbg, ubg=ubg)
         stats = self._nlp.stats()
         if not stats["success"]:
             raise _SolveError(f"{self.nlp_solver}: {stats.get('return_status')}")
@@ -278,8 +338,9 @@ class DiffDriveMpc:
             self._plan = np.zeros(2 * self.horizon)
             logger.warning("eBot MPC fallback #%d: %s", self.fallbacks, status)
             wheels = self.heuristic.wheels(desired[None, :], np.array([np.nan]), np.array([heading]))[0]
-        wheels = _clipped(wheels, vmax)
+        wheels = self._within_reach(_clipped(wheels, vmax))
         self._last_wheels = wheels
+        self._follow(wheels)
         return DiffDriveMpcResult(wheels, ok, used_fallback, elapsed, status)
 
 
@@ -291,10 +352,18 @@ def _clipped(wheels_mps: object, limit: float) -> FloatArray:
 
 
 def _ebot_problem(
-    vmax: float, base: float, dt: float, horizon: int, tracking_weight: float, input_change_weight: float, linear: bool
+    vmax: float,
+    base: float,
+    dt: float,
+    horizon: int,
+    tracking_weight: float,
+    input_change_weight: float,
+    linear: bool,
+    slewed: bool = False,
 ) -> dict[str, ca.SX]:
     """DiffDriveMpc's problem: the cost of the scaled wheel plan z (2N,) given p = (d (2,) in the heading frame,
-    z_prev (2,), sbar), and g the scaled forward speed of each step."""
+    z_prev (2,), sbar), and g the scaled forward speed (the throttle) of each step, then when `slewed` each step's
+    throttle change from the step before (N - 1 rows)."""
     z = ca.SX.sym("z", 2 * horizon)
     p = ca.SX.sym("p", 5)
     desired, z_prev, nominal = p[0:2], p[2:4], p[4]
@@ -311,8 +380,9 @@ def _ebot_problem(
         cost += input_change_weight * ca.sumsqr(zk - previous)
         delta, previous = delta + turn, zk
     # g: the forward speed of each step, scaled (>= 0 when the robot must face along its wish).
-    forward_speeds = ca.vertcat(*[0.5 * (z[2 * k] + z[2 * k + 1]) for k in range(horizon)])
-    return {"x": z, "p": p, "f": cost, "g": forward_speeds}
+    forward = [0.5 * (z[2 * k] + z[2 * k + 1]) for k in range(horizon)]
+    changes = [forward[k] - forward[k - 1] for k in range(1, horizon)] if slewed else []
+    return {"x": z, "p": p, "f": cost, "g": ca.vertcat(*forward, *changes)}
 
 
 @lru_cache(maxsize=32)
@@ -324,10 +394,11 @@ def _ebot_qp_functions(
     tracking_weight: float,
     input_change_weight: float,
     solver: str,
+    slewed: bool = False,
 ) -> tuple[dict[str, ca.SX], ca.Function, ca.Function, FloatArray]:
     """(problem, QP data Function p -> (h, g), conic solver, constraint matrix nonzeros) of the linear
-    DiffDriveMpc."""
-    problem = _ebot_problem(vmax, base, dt, horizon, tracking_weight, input_change_weight, True)
+    DiffDriveMpc (`slewed`: with the throttle change rows)."""
+    problem = _ebot_problem(vmax, base, dt, horizon, tracking_weight, input_change_weight, True, slewed)
     z, p, cost = problem["x"], problem["p"], problem["f"]
     hessian = ca.hessian(cost, z)[0]
     gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))

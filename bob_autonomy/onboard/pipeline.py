@@ -211,6 +211,7 @@ class EbotPipeline:
 
     position_m (n, 2), heading_rad (n,): the known start poses (the paper's robots are told theirs).
     metres_per_tick: wheel travel per encoder tick, m (wheel travel in metres is converted back to ticks).
+    throttle_slew_per_s: the autopilot's throttle slew (MOT_SLEWRATE / 100, per s; 0: none), which the MPCs plan with.
     """
 
     def __init__(
@@ -227,6 +228,7 @@ class EbotPipeline:
         mpc_time_budget_s: float = 0.02,
         frame: LocalFrame | None = None,
         gps_sigma_m: float = 2.0,
+        throttle_slew_per_s: float = 0.0,
     ) -> None:
         _check_choice("estimator", estimator, ESTIMATORS)
         _check_choice("controller", controller, CONTROLLERS)
@@ -234,6 +236,7 @@ class EbotPipeline:
         position = np.asarray(position_m, dtype=float).reshape(-1, 2)
         self.n = position.shape[0]
         self.max_wheel_speed_mps = float(max_wheel_speed_mps)
+        self.throttle_slew_per_s = float(throttle_slew_per_s)
         self.last_odometry_t = np.full(self.n, -np.inf)  # newest wheel reading and GPS fix of each robot, s
         self.last_fix_t = np.full(self.n, np.nan)
         self.last_fix_xy = np.zeros((self.n, 2))
@@ -245,7 +248,13 @@ class EbotPipeline:
         self.simple = DiffDriveController(wheel_base_m, max_wheel_speed_mps)
         self.mpcs = (
             [
-                DiffDriveMpc(wheel_base_m, max_wheel_speed_mps, dt_s=dt_s, time_budget_s=mpc_time_budget_s)
+                DiffDriveMpc(
+                    wheel_base_m,
+                    max_wheel_speed_mps,
+                    dt_s=dt_s,
+                    time_budget_s=mpc_time_budget_s,
+                    throttle_slew_per_s=throttle_slew_per_s,
+                )
                 for _ in range(self.n)
             ]
             if self.use_mpc
@@ -319,6 +328,9 @@ class EbotPipeline:
                 for k, mpc in enumerate(self.mpcs)
             ]
         )
+        if self.throttle_slew_per_s > 0.0:
+            for k in np.flatnonzero(turning):  # sent the simple command: the autopilot's slewed throttle follows it
+                self.mpcs[k].sent(simple[k])
         return np.where(turning[:, None], simple, wheels.reshape(-1, 2))
 
 

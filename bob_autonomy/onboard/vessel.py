@@ -349,11 +349,19 @@ class Vessel(VesselLinks, AutopilotDriving):
                 "motorboat model: %.2f m/s at full throttle, turning radius %.2f m, throttle slew %.0f %%/s",
                 top, radius, slew,
             )  # fmt: skip
-        if c.kind == EBOT and c.top_speed_mps is None and speed is not None:
-            # Wheels at full throttle move this fast (an eBot's 0.2 m/s is not a rover's): commands scale to it.
-            self.max_actuator = speed
-            self.pipeline = self.body.pipeline = ebot_pipeline(self.config, speed)
-            logger.info("vessel model: wheel speed %.2f m/s at full throttle (from the autopilot)", speed)
+        if c.kind == EBOT:
+            # A skid-steer autopilot slews the throttle (MOT_SLEWRATE) as a boat's does: the MPC plans with the slew
+            # it read. An autopilot that has no such parameter (the eBot's serial bridge sets the wheels at once) is
+            # planned for without one.
+            slew = profile.throttle_slew_per_s if profile.get("MOT_SLEWRATE") is not None else 0.0
+            rebuild = slew > 0.0
+            if c.top_speed_mps is None and speed is not None:
+                # Wheels at full throttle move this fast (an eBot's 0.2 m/s is not a rover's): commands scale to it.
+                self.max_actuator, rebuild = speed, True
+                logger.info("vessel model: wheel speed %.2f m/s at full throttle (from the autopilot)", speed)
+            if rebuild:
+                self.pipeline = self.body.pipeline = ebot_pipeline(self.config, self.max_actuator, slew)
+                logger.info("wheel control: throttle slew %.0f %%/s", 100 * slew)
         if c.kind == BUOY and profile.lateral_capable:
             self._hold_heading = True
         logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)

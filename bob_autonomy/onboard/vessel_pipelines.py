@@ -15,8 +15,9 @@ if TYPE_CHECKING:
     from bob_autonomy.onboard.vessel import VesselConfig
 
 
-def ebot_pipeline(c: VesselConfig, max_wheel_speed_mps: float) -> EbotPipeline:
-    """The eBot pipeline of a vessel: odometry or EKF from its start pose, wheel control at its top speed (m/s)."""
+def ebot_pipeline(c: VesselConfig, max_wheel_speed_mps: float, throttle_slew_per_s: float = 0.0) -> EbotPipeline:
+    """The eBot pipeline of a vessel: odometry or EKF from its start pose, wheel control at its top speed (m/s),
+    planned with the autopilot's throttle slew (MOT_SLEWRATE / 100, per s; 0: none)."""
     e = c.ebot
     x, y, heading = c.start_pose
     return EbotPipeline(
@@ -29,6 +30,7 @@ def ebot_pipeline(c: VesselConfig, max_wheel_speed_mps: float) -> EbotPipeline:
         controller=c.controller,
         dt_s=c.dt_s,
         frame=LocalFrame(*c.origin),
+        throttle_slew_per_s=throttle_slew_per_s,
     )
 
 

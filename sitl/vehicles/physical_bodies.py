@@ -89,9 +89,17 @@ class PhysicalBodies(KinematicBodies):
         # Simulated time: an MPC solve is never too slow for it, so a loaded machine cannot change a run.
         options = {"estimator": estimator, "controller": controller, "dt_s": dt_s, "mpc_time_budget_s": math.inf}
         self.buoy_vessels = BuoyPipeline(b.size, frame, self.max_thrust_n, **options)
-        # eBots start from a known pose (the paper's robots are told theirs) and dead-reckon from there.
+        # eBots start from a known pose (the paper's robots are told theirs) and dead-reckon from there. Over MAVLink
+        # the simulated autopilot (a skid-steer rover) slews their throttle as it does a boat's, and they plan with it.
+        ebot_slew = parameter_default(EBOT, "MOT_SLEWRATE") / 100.0 if link == "mavlink" else 0.0
         self.ebot_vessels = EbotPipeline(
-            self.position[e], self.heading[e], wheel_base, self.ebot_params.max_wheel_speed_mps, per_tick, **options
+            self.position[e],
+            self.heading[e],
+            wheel_base,
+            self.ebot_params.max_wheel_speed_mps,
+            per_tick,
+            throttle_slew_per_s=ebot_slew,
+            **options,
         )
         # Motorboats: each vessel knows its boat's top speed and turning radius (a real one reads SPEED_MAX and
         # TURN_RADIUS from its autopilot) and estimates as a buoy does.
