@@ -156,6 +156,7 @@ class DiffDriveMpc:
         self._plan = np.zeros(2 * self.horizon)
         self._output = 0.0  # the autopilot's throttle output as its slew follows our commands (scaled)
         self._output_before = 0.0  # ... before the last command (what `sent` follows from again)
+        self._fixed_bounds: dict[float, tuple[FloatArray, FloatArray]] = {}  # _row_bounds without a slew
         if self.form == "linear":
             self._build_linear()
         else:
@@ -225,9 +226,15 @@ class DiffDriveMpc:
         slew x dt_s, the first step's from the autopilot's output now. Where forward only asks for more than the
         slew reaches by a step (a robot still backing up), that step gets what the slew reaches: the plan stays
         feasible (a ramp at the slew from the output is)."""
+        if self.throttle_slew_per_s <= 0.0:  # fixed per lowest_forward: built once (the arrays are only read)
+            bounds = self._fixed_bounds.get(lowest_forward)
+            if bounds is None:
+                bounds = self._fixed_bounds[lowest_forward] = (
+                    np.full(self.horizon, float(lowest_forward)),
+                    np.ones(self.horizon),
+                )
+            return bounds
         lower, upper = np.full(self.horizon, float(lowest_forward)), np.ones(self.horizon)
-        if self.throttle_slew_per_s <= 0.0:
-            return lower, upper
         reach, out = self.throttle_slew_per_s * self.dt_s, self._output
         upper[0] = min(1.0, out + reach)
         lower[0] = min(max(lowest_forward, out - reach), upper[0])
