@@ -127,6 +127,44 @@ def test_the_throttle_output_ramps_at_mot_slewrate_which_the_vessel_reads(tmp_pa
         assert any(0.2 <= fraction <= 0.8 for _, fraction in ramp), ramp  # a ramp, not a step
 
 
+def _ramp(sitl: RoverSitl, link, session: AutopilotSession, steering: float, throttle: float, seconds: float) -> list:
+    """(s since the first override, SERVO1..8 us) while overrides go out at 10 Hz for `seconds`, then neutral."""
+    start = time.monotonic()
+    while time.monotonic() - start < seconds:
+        link.write(session.override(steering, throttle))
+        time.sleep(0.1)
+    link.write(session.override(0.0, 0.0))
+    return [(t - start, servos) for t, servos in sitl.seen.servos if t > start]
+
+
+def test_a_skid_steer_rover_slews_its_throttle_and_not_its_steering(tmp_path) -> None:
+    """What the eBot MPC plans with (bob_autonomy/control/ebot_mpc.py): AP_MotorsUGV::output slews the throttle
+    (MOT_SLEWRATE, here 25 %/s) before the skid-steer mix, and not the steering. A pivot (steering alone) reaches
+    both sides at once; full throttle from none takes 4 s on both sides."""
+    with RoverSitl(BINARY, "skid", tmp_path, params={"MOT_SLEWRATE": 25}) as sitl:
+        sitl.wait_initialised()
+        link, session = _session_on(sitl, EBOT, ["SERVO1_TRIM", "SERVO1_MAX", "SERVO3_TRIM", "SERVO3_MAX"])
+        assert session.profile.skid_steering and session.profile.throttle_slew_per_s == 0.25
+        p = session.params
+
+        def left(servos: list) -> float:  # SERVO1, throttle left (73), as a fraction of full
+            return (servos[0] - p["SERVO1_TRIM"]) / (p["SERVO1_MAX"] - p["SERVO1_TRIM"])
+
+        def right(servos: list) -> float:  # SERVO3, throttle right (74)
+            return (servos[2] - p["SERVO3_TRIM"]) / (p["SERVO3_MAX"] - p["SERVO3_TRIM"])
+
+        _ramp(sitl, link, session, 0.0, 0.0, 1.0)  # at rest
+        pivot = _ramp(sitl, link, session, 0.5, 0.0, 2.0)
+        turned = [t for t, servos in pivot if abs(left(servos)) > 0.45 and abs(right(servos)) > 0.45]
+        assert turned and turned[0] < 1.0, pivot  # the slewed throttle would take 1.8 s to 0.45
+        _ramp(sitl, link, session, 0.0, 0.0, 1.0)
+        ramp = _ramp(sitl, link, session, 0.0, 1.0, 6.0)
+        assert len(ramp) >= 10, "no SERVO_OUTPUT_RAW from the autopilot"
+        at_full = [t for t, servos in ramp if left(servos) > 0.98 and right(servos) > 0.98]
+        assert at_full and 3.9 <= at_full[0] <= 4.8, ramp  # 0.25 of full throttle per s, plus the link's delays
+        assert all(left(servos) <= 0.25 * t + 0.03 for t, servos in ramp), ramp  # never faster than the slew
+
+
 def test_throttle_left_and_right_on_other_outputs_still_turn_the_way_meant_astern(tmp_path) -> None:
     """A skid-steer rover with its throttles on SERVO5 (left) and SERVO6 (right): ArduPilot flips the steering
     once astern (get_pilot_input; output_skid_steering keeps it), so the vessel must pre-flip it. Asked to turn
