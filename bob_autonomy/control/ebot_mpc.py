@@ -28,6 +28,8 @@ from bob_autonomy.control.velocity_control import DiffDriveController
 from bob_autonomy.core.arrays import FloatArray, finite_pair
 
 logger = logging.getLogger("bob_autonomy.control.mpc")  # the MPCs' one logger (fallbacks are logged there)
+# (max wheel speed m/s, wheel base m, dt s, horizon, tracking weight, input change weight): what the QP depends on.
+EbotTuning = tuple[float, float, float, int, float, float]
 
 
 # --------------------------------------------------------------------------- eBot
@@ -167,9 +169,9 @@ class DiffDriveMpc:
 
     def _model(self, linear: bool) -> dict[str, ca.SX]:
         """Cost of the scaled wheel plan z (2N,) given p = (d (2,) in the heading frame, z_prev (2,), sbar)."""
-        return _ebot_problem(*self._tuning(), linear, self.throttle_slew_per_s > 0.0)
+        return _ebot_problem(self._tuning(), linear, self.throttle_slew_per_s > 0.0)
 
-    def _tuning(self) -> tuple[float, float, float, int, float, float]:
+    def _tuning(self) -> EbotTuning:
         return (
             self.max_wheel_speed_mps,
             self.wheel_base_m,
@@ -182,7 +184,7 @@ class DiffDriveMpc:
     def _build_linear(self) -> None:
         """This controller's buffers on the QP's casadi Functions (built once per tuning and shared by a fleet)."""
         slewed = self.throttle_slew_per_s > 0.0
-        self.problem, data, conic, constraint_values = _ebot_qp_functions(*self._tuning(), self.solver, slewed)
+        self.problem, data, conic, constraint_values = _ebot_qp_functions(self._tuning(), self.solver, slewed)
         self._data = _BufferedCall(data)
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         self._qp.inputs["a"][:] = constraint_values
@@ -358,19 +360,11 @@ def _clipped(wheels_mps: object, limit: float) -> FloatArray:
     return np.array((min(max(left, -limit), limit), min(max(right, -limit), limit)))
 
 
-def _ebot_problem(
-    vmax: float,
-    base: float,
-    dt: float,
-    horizon: int,
-    tracking_weight: float,
-    input_change_weight: float,
-    linear: bool,
-    slewed: bool = False,
-) -> dict[str, ca.SX]:
-    """DiffDriveMpc's problem: the cost of the scaled wheel plan z (2N,) given p = (d (2,) in the heading frame,
-    z_prev (2,), sbar), and g the scaled forward speed (the throttle) of each step, then when `slewed` each step's
-    throttle change from the step before (N - 1 rows)."""
+def _ebot_problem(tuning: EbotTuning, linear: bool, slewed: bool = False) -> dict[str, ca.SX]:
+    """DiffDriveMpc's problem for its tuning (DiffDriveMpc._tuning): the cost of the scaled wheel plan z (2N,) given
+    p = (d (2,) in the heading frame, z_prev (2,), sbar), and g the scaled forward speed (the throttle) of each step,
+    then when `slewed` each step's throttle change from the step before (N - 1 rows)."""
+    vmax, base, dt, horizon, tracking_weight, input_change_weight = tuning
     z = ca.SX.sym("z", 2 * horizon)
     p = ca.SX.sym("p", 5)
     desired, z_prev, nominal = p[0:2], p[2:4], p[4]
@@ -394,18 +388,11 @@ def _ebot_problem(
 
 @lru_cache(maxsize=32)
 def _ebot_qp_functions(
-    vmax: float,
-    base: float,
-    dt: float,
-    horizon: int,
-    tracking_weight: float,
-    input_change_weight: float,
-    solver: str,
-    slewed: bool = False,
+    tuning: EbotTuning, solver: str, slewed: bool = False
 ) -> tuple[dict[str, ca.SX], ca.Function, ca.Function, FloatArray]:
     """(problem, QP data Function p -> (h, g), conic solver, constraint matrix nonzeros) of the linear
     DiffDriveMpc (`slewed`: with the throttle change rows)."""
-    problem = _ebot_problem(vmax, base, dt, horizon, tracking_weight, input_change_weight, True, slewed)
+    problem = _ebot_problem(tuning, True, slewed)
     z, p, cost = problem["x"], problem["p"], problem["f"]
     hessian = ca.hessian(cost, z)[0]
     gradient = ca.substitute(ca.gradient(cost, z), z, ca.DM.zeros(z.shape[0]))
