@@ -27,6 +27,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.decoder import classify_frame, next_marker
+from firmware_bridge.frames import frame_checksum
 
 __all__ = [
     "ALLOWED_UNSIGNED",
@@ -194,6 +195,32 @@ class MavlinkCodec:
         self.mav.seq = (self.mav.seq + 1) % 256
         self.counters.sent += 1
         return data
+
+    def sign_routed(self, frame: bytes) -> bytes:
+        """Another component's frame (the autopilot's, routed to the ground station) as this link sends it.
+
+        Without a key: unchanged. With one, an unsigned MAVLink 2 frame gets the signed flag, its checksum
+        redone (the flag is under the checksum) and this link's signature (link id, the next timestamp, the first
+        48 bits of SHA-256(key + frame + link id + timestamp)), so that a ground station taking only signed frames
+        (MAVProxy's `set allow_unsigned 0`) hears the autopilot behind the vessel too, and no one can pass off
+        frames as the autopilot's on this link. A MAVLink 1 frame (no room for a signature), one already signed,
+        or one of a message id the dialect does not know (no CRC_EXTRA to redo its checksum) is left as it is."""
+        key = self.signing_key
+        if key is None or len(frame) < _HEADER_LEN[_V2] + 2 or frame[0] != _V2 or frame[2] & _SIGNED:
+            return frame
+        msg_type = mavlink.mavlink_map.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))
+        if msg_type is None:
+            return frame
+        out = bytearray(frame)
+        out[2] |= _SIGNED
+        crc_at = len(out) - 2
+        out[crc_at:] = frame_checksum(out, crc_at, msg_type.crc_extra).to_bytes(2, "little")
+        signing = self.mav.signing
+        timestamp = max(signing.timestamp, signing_timestamp(self.wall_clock()))
+        signing.timestamp = timestamp + 1  # one clock for our own frames and the routed ones: always increasing
+        out += bytes((signing.link_id,)) + timestamp.to_bytes(6, "little")
+        out += hashlib.sha256(key + bytes(out)).digest()[:6]
+        return bytes(out)
 
     # -- receiving -----------------------------------------------------------------------------------------
 

@@ -137,6 +137,7 @@ class VesselLinks:
         self.stats.routed_to_gcs += len(routed)
         if link is None:
             return
+        routed = [gcs.codec.sign_routed(frame) for frame in routed]  # signed as our own when the link is keyed
         for datagram in _datagrams(own + routed):
             try:
                 link.write(datagram)
