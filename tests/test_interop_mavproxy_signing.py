@@ -11,7 +11,9 @@ on both sides and passed. Here MAVProxy signs and checks instead:
   by the vessel and by MAVProxy: the autopilot's frames, which the vessel routes to the ground station, are signed
   by the vessel (`MavlinkCodec.sign_routed`; unsigned before, so such a MAVProxy heard only component 191);
 - with another passphrase it hears nothing (the vessel answers only ground stations whose frames pass its checks)
-  and changes nothing; the vessel counts its frames as wrongly signed.
+  and changes nothing; the vessel counts its frames as wrongly signed;
+- over the signed link, the rest of the field engineer's session of docs/gcs-protocol.md: a fence and a rally
+  point loaded from MAVProxy's own file formats, the fence enabled, the behaviour started and paused.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mavproxy_session import MAVPROXY, MavproxySession
 from vessel_helpers import ORIGIN, StandInVehicle
@@ -127,3 +130,56 @@ def test_mavproxy_with_another_passphrase_hears_nothing_and_changes_nothing(sign
     counters = vessel.gcs.counters
     assert counters.authenticated == 0 and counters.accepted == 0 and counters.params_set == 0
     assert vessel.params.get("BOB_P0_M") == 10.0
+
+
+def _fence_file(path: Path, vertices: list[tuple[float, float]], return_point: tuple[float, float]) -> Path:
+    """MAVProxy's own fence file (pymavlink mavwp MissionItemProtocol_Fence.load): "lat lon" lines, the return
+    point first and the first vertex again last (MAVProxy sends the lines between as one inclusion polygon)."""
+    lines = [return_point, *vertices, vertices[0]]
+    path.write_text("".join(f"{lat:.7f} {lon:.7f}\n" for lat, lon in lines))
+    return path
+
+
+def _wait_for(what: str, condition, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"never happened: {what}"
+        time.sleep(0.1)
+
+
+def test_mavproxy_over_a_signed_link_loads_a_fence_and_a_rally_point_then_starts_and_pauses_the_behaviour(
+    signed_vessel, tmp_path: Path
+) -> None:
+    vessel, port, _ = signed_vessel
+    lat, lon = ORIGIN
+    vertices = [
+        (lat - 0.001, lon - 0.001),
+        (lat - 0.001, lon + 0.001),
+        (lat + 0.001, lon + 0.001),
+        (lat + 0.001, lon - 0.001),
+    ]
+    return_point, rally = (lat + 0.0002, lon - 0.0003), (lat - 0.0004, lon + 0.0005)
+    fence = _fence_file(tmp_path / "fence.txt", vertices, return_point)
+    (tmp_path / "rally.txt").write_text(f"RALLY {rally[0]:.7f} {rally[1]:.7f} 0 0 0 0\n")  # MAVProxy's rally format
+    session = _signed_session(port, tmp_path, PASSPHRASE)
+    try:
+        session.expect(r"Detected vehicle 1:191", 20.0)
+        session.command(f"fence load {fence}", r"MISSION_ACK: TYPE_FENCE: ACCEPTED", 15.0)
+        np.testing.assert_allclose(vessel.gcs.fence, vertices, atol=2e-7)  # degE7 on the wire
+        rally_now = [vessel.params.get("BOB_RALLY_LAT"), vessel.params.get("BOB_RALLY_LON")]
+        np.testing.assert_allclose(rally_now, return_point, atol=1e-6)  # the fence's return point
+        session.command(f"rally load {tmp_path / 'rally.txt'}", r"MISSION_ACK: TYPE_RALLY: ACCEPTED", 15.0)
+        rally_now = [vessel.params.get("BOB_RALLY_LAT"), vessel.params.get("BOB_RALLY_LON")]
+        np.testing.assert_allclose(rally_now, rally, atol=1e-6)
+        session.send("long DO_FENCE_ENABLE 1")
+        _wait_for("BOB_FENCE_EN 1", lambda: vessel.params.get("BOB_FENCE_EN") == 1)
+        assert vessel.gcs.fence_enabled
+        session.send("long MISSION_START")
+        _wait_for("the behaviour running", lambda: vessel.gcs.behavior_running)
+        session.send("long DO_PAUSE_CONTINUE 0")
+        _wait_for("the behaviour paused", lambda: not vessel.gcs.behavior_running)
+    finally:
+        session.close()
+    counters = vessel.gcs.counters
+    assert counters.mission_uploads == 2 and counters.mission_errors == 0 and counters.commands >= 3
+    assert counters.bad_signature == 0 and counters.commands_denied == 0
