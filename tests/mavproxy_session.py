@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent  # where mavproxy_probe.py is
@@ -81,3 +82,31 @@ class MavproxySession:
         except (OSError, subprocess.TimeoutExpired):
             self.process.kill()
             self.process.wait()
+
+
+def signed_session(port: int, cwd: Path, passphrase: str, component: int = 191) -> MavproxySession:
+    """MAVProxy on udpout to `port`, its target (1, component), signing with `passphrase`'s key and taking signed
+    frames only."""
+    session = MavproxySession(f"udpout:127.0.0.1:{port}", cwd, component=component)
+    session.send("set param_ftp 0")  # the parameter protocol at once: component 191 serves no MAVFTP
+    session.send("set allow_unsigned 0")  # signed frames only (RADIO_STATUS aside)
+    session.command(f'signing key "{passphrase}"', r"Setup signing key")
+    return session
+
+
+def heard(
+    session: MavproxySession, timeout_s: float, done: Callable[[set[str], list[int]], bool] | None = None
+) -> tuple[set[str], list[int]]:
+    """The components ("1:191") MAVProxy detected and the parameter counts it received, in whatever order it
+    prints them, once `done(detected, counts)` holds (by default: two components and two parameter sets)."""
+    detected: set[str] = set()
+    counts: list[int] = []
+    finished = done or (lambda found, sets: len(found) >= 2 and len(sets) >= 2)
+    deadline = time.monotonic() + timeout_s
+    while not finished(detected, counts):
+        found = session.expect(r"Detected vehicle (1:\d+)|Received (\d+) parameters", deadline - time.monotonic())
+        if found.group(1):
+            detected.add(found.group(1))
+        else:
+            counts.append(int(found.group(2)))
+    return detected, counts

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mavproxy_session import MAVPROXY, MavproxySession
+from mavproxy_session import MAVPROXY, heard, signed_session
 from vessel_helpers import ORIGIN, StandInVehicle
 
 from bob_autonomy.core.behavior_config import BehaviorChoice
@@ -68,36 +68,13 @@ def signed_vessel(tmp_path: Path):
         vehicle.close()
 
 
-def _signed_session(port: int, cwd: Path, passphrase: str) -> MavproxySession:
-    session = MavproxySession(f"udpout:127.0.0.1:{port}", cwd)
-    session.send("set param_ftp 0")  # neither component serves MAVFTP: the parameter protocol at once
-    session.send("set allow_unsigned 0")  # signed frames only (RADIO_STATUS aside)
-    session.command(f'signing key "{passphrase}"', r"Setup signing key")
-    return session
-
-
-def _heard(session: MavproxySession, timeout_s: float) -> tuple[set[str], list[int]]:
-    """The components MAVProxy detected and the parameter counts it received, once it has both components and
-    two parameter sets (in whatever order it prints them)."""
-    detected: set[str] = set()
-    counts: list[int] = []
-    deadline = time.monotonic() + timeout_s
-    while len(detected) < 2 or len(counts) < 2:
-        found = session.expect(r"Detected vehicle (1:\d+)|Received (\d+) parameters", deadline - time.monotonic())
-        if found.group(1):
-            detected.add(found.group(1))
-        else:
-            counts.append(int(found.group(2)))
-    return detected, counts
-
-
 def test_mavproxy_with_the_fleet_passphrase_reads_and_sets_the_parameters_of_a_signed_vessel(
     signed_vessel, tmp_path: Path
 ) -> None:
     vessel, port, stand_in = signed_vessel
-    session = _signed_session(port, tmp_path, PASSPHRASE)
+    session = signed_session(port, tmp_path, PASSPHRASE)
     try:
-        detected, counts = _heard(session, 40.0)
+        detected, counts = heard(session, 40.0)
         assert detected == {"1:1", "1:191"}
         assert sorted(counts) == sorted([len(vessel.params), len(stand_in.vehicle.params)])
         session.send("param set BOB_P0_M 7.5")
@@ -116,7 +93,7 @@ def test_mavproxy_with_the_fleet_passphrase_reads_and_sets_the_parameters_of_a_s
 
 def test_mavproxy_with_another_passphrase_hears_nothing_and_changes_nothing(signed_vessel, tmp_path: Path) -> None:
     vessel, port, _ = signed_vessel
-    session = _signed_session(port, tmp_path, "not the fleet passphrase")
+    session = signed_session(port, tmp_path, "not the fleet passphrase")
     try:
         deadline = time.monotonic() + 8.0
         while vessel.gcs.counters.bad_signature < 5:  # MAVProxy's heartbeats, once a second, now signed
@@ -161,7 +138,7 @@ def test_mavproxy_over_a_signed_link_loads_a_fence_and_a_rally_point_then_starts
     return_point, rally = (lat + 0.0002, lon - 0.0003), (lat - 0.0004, lon + 0.0005)
     fence = _fence_file(tmp_path / "fence.txt", vertices, return_point)
     (tmp_path / "rally.txt").write_text(f"RALLY {rally[0]:.7f} {rally[1]:.7f} 0 0 0 0\n")  # MAVProxy's rally format
-    session = _signed_session(port, tmp_path, PASSPHRASE)
+    session = signed_session(port, tmp_path, PASSPHRASE)
     try:
         session.expect(r"Detected vehicle 1:191", 20.0)
         session.command(f"fence load {fence}", r"MISSION_ACK: TYPE_FENCE: ACCEPTED", 15.0)

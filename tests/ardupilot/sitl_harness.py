@@ -79,6 +79,8 @@ class Observation:
     servos: list[tuple[float, list[int]]] = field(default_factory=list)  # (t, servo1..8 outputs, us)
     modes: list[tuple[float, int, bool]] = field(default_factory=list)  # (t, custom_mode, armed)
     texts: list[str] = field(default_factory=list)
+    params: dict[str, float] = field(default_factory=dict)  # each PARAM_VALUE heard (a set goes to every link)
+    param_count: int | None = None  # the autopilot's parameter count, from those PARAM_VALUEs
 
 
 class RoverSitl:
@@ -160,6 +162,9 @@ class RoverSitl:
                 self.seen.modes.append((t, msg.custom_mode, armed))
             elif name == "STATUSTEXT":
                 self.seen.texts.append(msg.text)
+            elif name == "PARAM_VALUE" and msg.get_srcComponent() == 1:
+                self.seen.params[msg.param_id] = msg.param_value
+                self.seen.param_count = msg.param_count
 
     def wait_initialised(self, timeout_s: float = 60.0) -> None:
         """Until the autopilot leaves INITIALISING (custom mode 16) and has a GPS position."""
