@@ -125,6 +125,22 @@ def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(st
     assert sent and all(abs(c[3] - 1500) <= half[0] and abs(c[4] - 1500) <= half[1] for c in sent)
 
 
+def test_an_autopilot_that_takes_mavlink_only_from_its_ground_station_is_still_started_and_driven(
+    stand_in: StandInVehicle,
+) -> None:
+    """MAV_OPTIONS bit 0: ArduPilot takes MAVLink only from MAV_GCS_SYSID, and from its own system's components
+    (GCS_Common.cpp accept_packet). With MAV_GCS_SYSID 200 the vessel cannot learn that id by asking as system
+    255: against the real Rover SITL it got no answer to anything and gave up "would not arm" without saying why.
+    It now asks as a component of the autopilot's own system until it knows the id, then sends as it."""
+    for name, value in (("MAV_GCS_SYSID", 200), ("MAV_OPTIONS", 1)):
+        assert stand_in.vehicle.params.set(name, value)
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    stats = vessel.run(duration_s=15.0)
+    assert vessel.autopilot.profile.gcs_system_id == 200 and vessel.autopilot.encoder.mav.srcSystem == 200
+    assert stand_in.vehicle.armed and stand_in.vehicle.counters.commands > 30 and stats.commands > 30
+    assert stand_in.position[0] > 2.0, f"moved east towards the goal: {stand_in.position}"
+
+
 @pytest.mark.parametrize(("slew_rate", "per_s"), [(None, 1.0), (40, 0.4)])
 def test_a_motorboat_plans_with_the_throttle_slew_its_autopilot_has(slew_rate: int | None, per_s: float) -> None:
     """MOT_SLEWRATE (default 100 %/s) limits how fast ArduPilot moves the throttle output (AP_MotorsUGV): the

@@ -5,7 +5,9 @@
    does not acknowledge it), and for AUTOPILOT_VERSION and HOME_POSITION.
 3. Read the parameters the autonomy depends on (frame, RC map and calibration, GCS id, override time,
    failsafes, steering type, speeds); stop with a message saying what to change when the vehicle cannot be
-   driven as configured; warn about what is unsafe.
+   driven as configured; warn about what is unsafe. Steps 1-3 speak as a component of the autopilot's own
+   system, which ArduPilot answers even when MAV_OPTIONS bit 0 takes MAVLink only from MAV_GCS_SYSID; from
+   then on the process sends as MAV_GCS_SYSID.
 4. Send neutral RC overrides for a while (an autopilot without an RC receiver sits in radio failsafe until
    it hears some: "Arm: Radio failsafe on", issue #18), keep them fresh from then on.
 5. Set the driving mode (MANUAL) and see the HEARTBEAT report it.
@@ -115,6 +117,11 @@ class AutopilotStarter:
     def run(self) -> AutopilotProfile | None:
         """Bring the autopilot into service; returns its profile (None when asked to stop meanwhile)."""
         s, o = self.session, self.options
+        # Until its MAV_GCS_SYSID is known, speak as a component of the autopilot's own system: ArduPilot takes any
+        # packet from its own system whatever MAV_OPTIONS says (GCS_Common.cpp accept_packet), so the queries are
+        # answered even by an autopilot that takes MAVLink only from its ground station. `learn` then takes the
+        # ground station's id, the only one whose RC overrides and HEARTBEATs count.
+        s.encoder.mav.srcSystem = s.target_system
         if not self._wait(o.heartbeat_timeout_s, lambda: s.custom_mode is not None):
             if self.stopped():
                 return None

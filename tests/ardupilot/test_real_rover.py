@@ -127,6 +127,17 @@ def test_without_an_rc_receiver_the_vessel_still_arms_and_drives(tmp_path) -> No
         assert math.isfinite(track[-1][2])
 
 
+def test_an_autopilot_taking_mavlink_only_from_its_ground_station_is_started_and_driven(tmp_path) -> None:
+    # MAV_OPTIONS bit 0 with MAV_GCS_SYSID 200: before the vessel asked as its own system until it knew that id,
+    # ArduPilot answered none of its queries and the start-up ended "would not arm" without a reason.
+    params = {"MAV_GCS_SYSID": 200, "MAV_OPTIONS": 1}
+    with RoverSitl(BINARY, "omni", tmp_path, params=params) as sitl:
+        sitl.wait_initialised()
+        track, _errors, vessel = drive(sitl, _config(sitl, (20.0, 0.0)), 45.0)
+        assert vessel.autopilot.profile.gcs_system_id == 200
+        assert track and np.hypot(*(track[-1][1] - (20.0, 0.0))) < 5.0, track[-1]
+
+
 def test_skid_steer_rover_as_an_ebot_reaches_goals_with_gps(tmp_path) -> None:
     # The eBot kind outdoors: no wheel encoders (WENC_TYPE unset), position from GPS, wheel speeds scaled to the
     # rover's own full-throttle speed (CRUISE_SPEED / CRUISE_THROTTLE).
