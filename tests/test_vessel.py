@@ -125,6 +125,18 @@ def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(st
     assert sent and all(abs(c[3] - 1500) <= half[0] and abs(c[4] - 1500) <= half[1] for c in sent)
 
 
+def test_an_autopilot_that_hears_nothing_we_send_stops_the_start_up_saying_so(stand_in: StandInVehicle) -> None:
+    """A one-way link (the serial TX wire off, a radio that only receives): the autopilot's HEARTBEATs arrive and
+    nothing we send is answered. Before, the start-up went on with assumed defaults and ended "would not arm"
+    without a reason; now it stops once the parameters go unanswered and names the link."""
+    stand_in.deaf.set()
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    started = time.monotonic()
+    with pytest.raises(VehicleError, match=r"heard \(HEARTBEAT\) but answered nothing sent to it.*TX wire"):
+        vessel.run(duration_s=30.0)
+    assert time.monotonic() - started < 15.0 and not stand_in.vehicle.armed
+
+
 def test_an_autopilot_that_takes_mavlink_only_from_its_ground_station_is_still_started_and_driven(
     stand_in: StandInVehicle,
 ) -> None:

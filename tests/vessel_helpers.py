@@ -34,7 +34,8 @@ class StandInVehicle(threading.Thread):
         self.peer = None
         self.running = threading.Event()
         self.running.set()
-        self.muted = threading.Event()
+        self.muted = threading.Event()  # set: sends nothing
+        self.deaf = threading.Event()  # set: hears nothing (a broken wire from the vessel), still sends
         self.applied: list[np.ndarray] = []
 
     def run(self) -> None:
@@ -43,7 +44,7 @@ class StandInVehicle(threading.Thread):
         while self.running.is_set():
             try:
                 data, self.peer = self.sock.recvfrom(65535)
-                replies = self.vehicle.receive(data, self.clock.now())
+                replies = b"" if self.deaf.is_set() else self.vehicle.receive(data, self.clock.now())
                 if replies:
                     self.sock.sendto(replies, self.peer)
             except TimeoutError:

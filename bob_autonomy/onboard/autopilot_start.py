@@ -190,6 +190,13 @@ class AutopilotStarter:
                     return all(n in s.params for n in w) or quiet
 
                 self._wait(per_round, settled)
+        if not s.params and not s.acks:
+            raise AutopilotStartError(
+                f"autopilot system {s.target_system} is heard (HEARTBEAT) but answered nothing sent to it: no "
+                f"COMMAND_ACK to {s.interval_requests} message-rate requests and no PARAM_VALUE to "
+                f"{len(CORE_PARAMS)} parameter requests. Check that our bytes reach the autopilot (the serial TX wire "
+                "to its RX; a half-duplex or one-way radio) and that its port speaks MAVLink 2 (SERIALn_PROTOCOL 2)"
+            )
         profile = s.learn()
         absent = [n for n in ("FRAME_CLASS", "FRAME_TYPE", "RC_OVERRIDE_TIME") if n not in s.params]
         if absent:
