@@ -134,7 +134,7 @@ def test_an_autopilot_that_hears_nothing_we_send_stops_the_start_up_saying_so(st
     started = time.monotonic()
     with pytest.raises(VehicleError, match=r"heard \(HEARTBEAT\) but answered nothing sent to it.*TX wire"):
         vessel.run(duration_s=30.0)
-    assert time.monotonic() - started < 15.0 and not stand_in.vehicle.armed
+    assert time.monotonic() - started < 25.0 and not stand_in.vehicle.armed
 
 
 def test_an_autopilot_that_takes_mavlink_only_from_its_ground_station_is_still_started_and_driven(

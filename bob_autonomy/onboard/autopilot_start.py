@@ -190,7 +190,10 @@ class AutopilotStarter:
                     return all(n in s.params for n in w) or quiet
 
                 self._wait(per_round, settled)
-        if not s.params and not s.acks:
+        # Nothing answered yet: give a slow link (seconds each way) one more parameter timeout before the verdict.
+        if not (s.params or s.acks) and not self._wait(o.param_timeout_s, lambda: bool(s.params or s.acks)):
+            if self.stopped():
+                return s.learn()
             raise AutopilotStartError(
                 f"autopilot system {s.target_system} is heard (HEARTBEAT) but answered nothing sent to it: no "
                 f"COMMAND_ACK to {s.interval_requests} message-rate requests and no PARAM_VALUE to "
