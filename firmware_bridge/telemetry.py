@@ -303,12 +303,13 @@ class TelemetryEncoder:
         """MESSAGE_INTERVAL (reply to MAV_CMD_GET_MESSAGE_INTERVAL): -1 = off, 0 = not available."""
         return self.encoder.frame(mavlink.MAVLink_message_interval_message, int(message_id) & 0xFFFF, int(interval_us))
 
-    def sys_status(self, voltage_v: float, remaining_pct: float) -> bytes:
-        """SYS_STATUS with the battery voltage (V) and remaining charge (%); NaN reports unknown."""
+    def sys_status(self, voltage_v: float, remaining_pct: float, sensors: tuple[int, int, int] = (0, 0, 0)) -> bytes:
+        """SYS_STATUS with the battery voltage (V) and remaining charge (%; NaN reports unknown) and the
+        onboard_control_sensors (present, enabled, health) bit masks (MAV_SYS_STATUS_*)."""
         voltage = UINT16_MAX if not math.isfinite(voltage_v) else round(voltage_v * 1000.0)
         remaining = -1 if not math.isfinite(remaining_pct) else round(remaining_pct)
         return self.encoder.frame(
-            mavlink.MAVLink_sys_status_message, 0, 0, 0, 0, voltage, -1, remaining, 0, 0, 0, 0, 0, 0
+            mavlink.MAVLink_sys_status_message, *sensors, 0, voltage, -1, remaining, 0, 0, 0, 0, 0, 0
         )
 
     def command_ack(self, command: int, result: int, target_system: int = 0, target_component: int = 0) -> bytes:

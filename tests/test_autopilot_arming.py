@@ -199,3 +199,39 @@ def test_prearm_reports_on_request_and_every_30_s() -> None:
     v.armed = True
     (ack,) = acks(v.receive(gcs.long(m.MAV_CMD_RUN_PREARM_CHECKS), 65.0))
     assert ack.result == m.MAV_RESULT_TEMPORARILY_REJECTED
+
+
+# SYS_STATUS (present, enabled, health) of ArduPilot's rover-omni3mecanum SITL, disarmed, its EKF settled on GPS
+# and its pre-arm checks passing (read on its SERIAL0, 2026-11-27); armed, LOGGING is enabled too.
+SETTLED_ROVER_SITL = (0x1331DC2F, 0x1221802F, 0x1331812F)
+
+
+def _sensors(messages: list) -> tuple[int, int, int]:
+    status = of_type(messages, "SYS_STATUS")[-1]
+    return (
+        status.onboard_control_sensors_present,
+        status.onboard_control_sensors_enabled,
+        status.onboard_control_sensors_health,
+    )
+
+
+def test_sys_status_reports_sensors_as_rover_sitl_and_the_pre_arm_check_as_arming_would_go() -> None:
+    v = SimulatedVehicle(1, "buoy", 45.0)
+    assert _sensors(run(v, 0.0, 2.0)) == SETTLED_ROVER_SITL
+    assert _arm(v, 2.0)[0] == m.MAV_RESULT_ACCEPTED
+    _present, enabled, health = _sensors(run(v, 2.0, 4.0))
+    assert enabled == SETTLED_ROVER_SITL[1] | m.MAV_SYS_STATUS_LOGGING and health == SETTLED_ROVER_SITL[2]
+
+    refused = SimulatedVehicle(1, "buoy", 45.0, params={"RC3_MIN": 1400})  # "Throttle radio min too high"
+    _present, _enabled, health = _sensors(run(refused, 0.0, 2.0))
+    assert health == SETTLED_ROVER_SITL[2] & ~m.MAV_SYS_STATUS_PREARM_CHECK
+    assert _arm(refused, 2.0)[0] == m.MAV_RESULT_FAILED
+
+    lost = SimulatedVehicle(1, "buoy", 45.0, params={"ARMING_NEED_LOC": 1})
+    _present, enabled, health = _sensors(run(lost, 0.0, 2.0, gps=False))
+    assert not enabled & m.MAV_SYS_STATUS_AHRS
+    assert not health & (m.MAV_SYS_STATUS_SENSOR_GPS | m.MAV_SYS_STATUS_AHRS | m.MAV_SYS_STATUS_PREARM_CHECK)
+
+    deaf = SimulatedVehicle(1, "buoy", 45.0, rc_receiver=False)  # radio failsafe from boot
+    _present, _enabled, health = _sensors(run(deaf, 0.0, 2.0))
+    assert not health & (m.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | m.MAV_SYS_STATUS_PREARM_CHECK)

@@ -43,13 +43,25 @@ COMMANDS = [  # (command, params): answers compared
 def _ask(conn, beat) -> dict:
     """Rates over 5 s, then the parameters' values and the commands' answers."""
     counts: dict[str, int] = {}
+    sensors = None
     end = time.monotonic() + 6.0
     while time.monotonic() < end:
         beat()
         msg = conn.recv_match(blocking=True, timeout=0.2)
         if msg is not None and msg.get_srcComponent() == 1 and time.monotonic() > end - 5.0:
             counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+        if msg is not None and msg.get_type() == "SYS_STATUS":
+            sensors = msg
     answers: dict = {"rates": {k: round(counts.get(k, 0) / 5.0) for k in COMMON_STREAMS}}
+    # Which sensors SYS_STATUS says are there and enabled. Left out: GPS and AHRS, which this SITL (firmware
+    # defaults, seconds after boot) has not found or started yet, and the battery, which its defaults leave
+    # unmonitored while the simulated autopilot always has one (as SITL's rover.parm sets BATT_MONITOR 4). The
+    # health bits follow the EKF's and the pre-arm checks' timing: tests/test_autopilot_arming.py compares them
+    # with a settled Rover SITL's.
+    settling = m.MAV_SYS_STATUS_SENSOR_GPS | m.MAV_SYS_STATUS_AHRS | m.MAV_SYS_STATUS_SENSOR_BATTERY
+    for name in ("present", "enabled"):
+        bits = None if sensors is None else getattr(sensors, f"onboard_control_sensors_{name}") & ~settling
+        answers[f"sensors_{name}"] = None if bits is None else hex(bits)
     names = [
         *KIND_FRAMES["buoy"],
         "RC_OVERRIDE_TIME",

@@ -12,9 +12,9 @@ system and component.
 
 What MAVProxy does that a reader should know: it fetches parameters over MAVFTP first (@PARAM/param.pck) and falls
 back to PARAM_REQUEST_LIST only when that times out (several seconds); neither the simulated autopilot nor component
-191 serves MAVFTP, so the session turns it off (`set param_ftp 0`). It says "fence breach" at start because the
-simulated autopilot's SYS_STATUS leaves MAV_SYS_STATUS_GEOFENCE out of the health bits, which ArduPilot sets whenever
-its fence has not failed (libraries/GCS_MAVLink/GCS_Common.cpp).
+191 serves MAVFTP, so the session turns it off (`set param_ftp 0`). (It used to say "fence breach" at start: the
+simulated autopilot's SYS_STATUS left out the sensor bits, MAV_SYS_STATUS_GEOFENCE's health among them, which
+ArduPilot sets whenever its fence has not failed; it now reports them as a Rover SITL does.)
 """
 
 from __future__ import annotations

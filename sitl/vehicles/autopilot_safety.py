@@ -82,6 +82,32 @@ def check_enabled(checks: int, bit: int) -> bool:
     return bool(checks & CHECK_ALL) or bool(checks & bit)
 
 
+# SYS_STATUS onboard_control_sensors of a Rover SITL (rover-omni3mecanum, disarmed, 2026-11-27: present 0x1331dc2f,
+# enabled 0x1221802f once its EKF runs and 0x1321802f armed, health 0x1331812f with a fix and the pre-arm checks
+# passing; libraries/GCS_MAVLink/GCS.cpp update_sensor_status_flags). Enabled and health below leave out the bits
+# the vehicle's state sets (vehicle_streams._sensor_bits): GPS and AHRS health, AHRS enabled (with a fix), the
+# RC receiver's health (out of radio failsafe), the pre-arm check's health, logging enabled (armed). ArduPilot
+# reports LASER_POSITION healthy though absent; so does this.
+_S = mavlink
+_SENSORS = (_S.MAV_SYS_STATUS_SENSOR_3D_GYRO | _S.MAV_SYS_STATUS_SENSOR_3D_ACCEL | _S.MAV_SYS_STATUS_SENSOR_3D_MAG
+            | _S.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE)  # fmt: skip
+SENSORS_PRESENT = (
+    _SENSORS | _S.MAV_SYS_STATUS_SENSOR_GPS | _S.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | _S.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | _S.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | _S.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | _S.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | _S.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | _S.MAV_SYS_STATUS_GEOFENCE | _S.MAV_SYS_STATUS_AHRS
+    | _S.MAV_SYS_STATUS_LOGGING | _S.MAV_SYS_STATUS_SENSOR_BATTERY | _S.MAV_SYS_STATUS_PREARM_CHECK
+)  # fmt: skip
+SENSORS_ENABLED = (
+    _SENSORS | _S.MAV_SYS_STATUS_SENSOR_GPS | _S.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | _S.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | _S.MAV_SYS_STATUS_SENSOR_BATTERY | _S.MAV_SYS_STATUS_PREARM_CHECK
+)  # fmt: skip
+SENSORS_HEALTHY = (
+    _SENSORS | _S.MAV_SYS_STATUS_SENSOR_LASER_POSITION | _S.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | _S.MAV_SYS_STATUS_GEOFENCE | _S.MAV_SYS_STATUS_LOGGING | _S.MAV_SYS_STATUS_SENSOR_BATTERY
+)  # fmt: skip
+
+
 def arming_failures(v) -> list[str]:
     """Reasons (without the "Arm: " / "PreArm: " prefix) why vehicle `v` may not arm now; empty when it may."""
     p = v.params

@@ -49,7 +49,20 @@ class TelemetryStreams:
         return self._heartbeat()
 
     def _build_sys_status(self) -> bytes:
-        return self.telemetry.sys_status(12.6, 100.0)
+        return self.telemetry.sys_status(12.6, 100.0, self._sensor_bits())
+
+    def _sensor_bits(self) -> tuple[int, int, int]:
+        """SYS_STATUS's (present, enabled, health) as a Rover SITL reports them (safety.SENSORS_*): GPS and AHRS
+        healthy with a fix, the RC receiver out of radio failsafe, the pre-arm check while nothing stops arming,
+        logging enabled while armed."""
+        fix = self.has_fix()
+        enabled = safety.SENSORS_ENABLED | (m.MAV_SYS_STATUS_AHRS if fix else 0)
+        enabled |= m.MAV_SYS_STATUS_LOGGING if self.armed else 0
+        health = safety.SENSORS_HEALTHY
+        health |= (m.MAV_SYS_STATUS_SENSOR_GPS | m.MAV_SYS_STATUS_AHRS) if fix else 0
+        health |= 0 if self.radio_failsafe_on() else m.MAV_SYS_STATUS_SENSOR_RC_RECEIVER
+        health |= 0 if safety.arming_failures(self) else m.MAV_SYS_STATUS_PREARM_CHECK
+        return safety.SENSORS_PRESENT, enabled, health
 
     def _build_battery_status(self) -> bytes:
         return self.telemetry.battery_status(12.6, 100.0)
@@ -186,7 +199,7 @@ class TelemetryStreams:
         out = bytearray(self.stream(t_s))
         if t_s >= self._next_housekeeping_s:
             self._next_housekeeping_s = t_s + HOUSEKEEPING_PERIOD_S
-            out += self._heartbeat() + self.telemetry.sys_status(voltage_v, remaining_pct)
+            out += self._heartbeat() + self.telemetry.sys_status(voltage_v, remaining_pct, self._sensor_bits())
         return bytes(out)
 
 
