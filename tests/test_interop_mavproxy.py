@@ -28,11 +28,10 @@ from pathlib import Path
 import pytest
 from interop_fleet import interop_fleet
 from mavproxy_session import MAVPROXY, MavproxySession
-from vessel_helpers import ORIGIN, StandInVehicle
+from vessel_helpers import ORIGIN, StandInVehicle, ground_station_vessel_config
 
-from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.core.clock import ScaledWallClock
-from bob_autonomy.onboard.vessel import Vessel, VesselConfig
+from bob_autonomy.onboard.vessel import Vessel
 
 pytestmark = [
     pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install -e '.[dev]')"),
@@ -43,15 +42,7 @@ pytestmark = [
 def test_mavproxy_lists_and_sets_parameters_and_uploads_waypoints(tmp_path: Path) -> None:
     vehicle = StandInVehicle()
     vehicle.start()
-    config = VesselConfig(
-        vehicle=f"udpout:127.0.0.1:{vehicle.port}",
-        system_id=1,
-        behavior=BehaviorChoice(behavior="bob-rule", params={"p0": 10.0}),
-        origin=ORIGIN,
-        controller="simple",
-        gcs="udpin:127.0.0.1:0",
-        autostart=False,
-    )
+    config = ground_station_vessel_config(vehicle.port)
     vessel = Vessel(config, clock=ScaledWallClock(1.0))
     runner = threading.Thread(target=vessel.run, daemon=True)
     runner.start()

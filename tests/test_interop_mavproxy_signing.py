@@ -25,11 +25,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mavproxy_session import MAVPROXY, heard, signed_session
-from vessel_helpers import ORIGIN, StandInVehicle
+from vessel_helpers import ORIGIN, StandInVehicle, ground_station_vessel_config
 
-from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.core.clock import ScaledWallClock
-from bob_autonomy.onboard.vessel import Vessel, VesselConfig
+from bob_autonomy.onboard.vessel import Vessel
 
 pytestmark = [
     pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install -e '.[dev]')"),
@@ -47,16 +46,7 @@ def signed_vessel(tmp_path: Path):
     key_file.write_text(PASSPHRASE + "\n")
     vehicle = StandInVehicle()
     vehicle.start()
-    config = VesselConfig(
-        vehicle=f"udpout:127.0.0.1:{vehicle.port}",
-        system_id=1,
-        behavior=BehaviorChoice(behavior="bob-rule", params={"p0": 10.0}),
-        origin=ORIGIN,
-        controller="simple",
-        gcs="udpin:127.0.0.1:0",
-        autostart=False,
-        signing_key_file=str(key_file),
-    )
+    config = ground_station_vessel_config(vehicle.port, signing_key_file=str(key_file))
     vessel = Vessel(config, clock=ScaledWallClock(1.0))
     runner = threading.Thread(target=vessel.run, daemon=True)
     runner.start()

@@ -8,8 +8,10 @@ import threading
 
 import numpy as np
 
+from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.core.clock import ScaledWallClock
 from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.onboard.vessel import VesselConfig
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 ORIGIN = (1.3405, 103.9560)
@@ -74,3 +76,19 @@ class StandInVehicle(threading.Thread):
         self.running.clear()
         self.join(2.0)
         self.sock.close()
+
+
+def ground_station_vessel_config(vehicle_port: int, **overrides) -> VesselConfig:
+    """A vessel for a stand-in vehicle on `vehicle_port`, with a ground-station link (udpin on a free port) and its
+    behaviour not started, for ground-station tests; `overrides` replace any field."""
+    values = dict(
+        vehicle=f"udpout:127.0.0.1:{vehicle_port}",
+        system_id=1,
+        behavior=BehaviorChoice(behavior="bob-rule", params={"p0": 10.0}),
+        origin=ORIGIN,
+        controller="simple",
+        gcs="udpin:127.0.0.1:0",
+        autostart=False,
+    )
+    values.update(overrides)
+    return VesselConfig(**values)

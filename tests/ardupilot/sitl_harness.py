@@ -191,6 +191,24 @@ class RoverSitl:
         self.log.close()
 
 
+def vessel_config(sitl: RoverSitl, goal: tuple[float, float] = (0.0, 0.0), **overrides):
+    """A `VesselConfig` for a buoy vessel on the SITL's SERIAL0 that seeks `goal` (east, north m from HOME) with the
+    BoB rule, allowed 60 s to arm; `overrides` replace any of its fields."""
+    from bob_autonomy.core.behavior_config import BehaviorChoice
+    from bob_autonomy.onboard.vessel import VesselConfig
+
+    params = {"H": 1, "goal": list(goal), "max_speed": 1.5, "speed_scale": 1.0}
+    values = dict(
+        vehicle=f"tcp:127.0.0.1:{sitl.serial0}",
+        system_id=1,
+        origin=(HOME[0], HOME[1]),
+        behavior=BehaviorChoice(behavior="bob-rule", params=params),
+        arm_timeout_s=60.0,
+    )
+    values.update(overrides)
+    return VesselConfig(**values)
+
+
 def drive(sitl: RoverSitl, config, seconds: float):
     """Run a `bob_autonomy.onboard.vessel.Vessel` with `config` for `seconds` after its start-up; every 0.5 s record
     (wall s since start, the autopilot's own position as east/north m, its heading deg) and the distance of

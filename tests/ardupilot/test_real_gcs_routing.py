@@ -17,10 +17,9 @@ import time
 
 import pytest
 from mavproxy_session import MAVPROXY, heard, signed_session
-from sitl_harness import HOME, RoverSitl, sitl_binary
+from sitl_harness import RoverSitl, sitl_binary, vessel_config
 
-from bob_autonomy.core.behavior_config import BehaviorChoice
-from bob_autonomy.onboard.vessel import Vessel, VesselConfig
+from bob_autonomy.onboard.vessel import Vessel
 
 BINARY = sitl_binary()
 pytestmark = [
@@ -36,15 +35,7 @@ def test_mavproxy_fetches_and_sets_real_ardupilots_parameters_through_a_signed_v
     key_file.write_text(PASSPHRASE + "\n")
     with RoverSitl(BINARY, "omni", tmp_path) as sitl:
         sitl.wait_initialised()
-        config = VesselConfig(
-            vehicle=f"tcp:127.0.0.1:{sitl.serial0}",
-            system_id=1,
-            origin=(HOME[0], HOME[1]),
-            behavior=BehaviorChoice(behavior="bob-rule", params={"H": 1, "goal": [0.0, 0.0]}),
-            arm_timeout_s=60.0,
-            gcs="udpin:127.0.0.1:0",
-            signing_key_file=str(key_file),
-        )
+        config = vessel_config(sitl, gcs="udpin:127.0.0.1:0", signing_key_file=str(key_file))
         vessel = Vessel(config)
         runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 120.0}, daemon=True)
         runner.start()

@@ -17,7 +17,7 @@ import threading
 import time
 
 import pytest
-from sitl_harness import HOME, RoverSitl, sitl_binary
+from sitl_harness import RoverSitl, sitl_binary, vessel_config
 
 mavsdk = pytest.importorskip("mavsdk", minversion="4.1", reason="MAVSDK-Python 4.1+ (pip install -e '.[dev]')")
 
@@ -26,8 +26,7 @@ from mavsdk.plugins.mission_raw.mission_raw import MissionItem, MissionRaw  # no
 from mavsdk.plugins.telemetry.telemetry import Telemetry  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from bob_autonomy.core.behavior_config import BehaviorChoice  # noqa: E402
-from bob_autonomy.onboard.vessel import Vessel, VesselConfig  # noqa: E402
+from bob_autonomy.onboard.vessel import Vessel  # noqa: E402
 
 BINARY = sitl_binary()
 pytestmark = [
@@ -46,14 +45,7 @@ def _wait(predicate, timeout_s: float, what: str) -> None:
 def test_mavsdk_uploads_and_downloads_real_ardupilots_mission_through_the_vessel(tmp_path) -> None:
     with RoverSitl(BINARY, "omni", tmp_path) as sitl:
         sitl.wait_initialised()
-        config = VesselConfig(
-            vehicle=f"tcp:127.0.0.1:{sitl.serial0}",
-            system_id=1,
-            origin=(HOME[0], HOME[1]),
-            behavior=BehaviorChoice(behavior="bob-rule", params={"H": 1, "goal": [0.0, 0.0]}),
-            arm_timeout_s=60.0,
-            gcs="udpin:127.0.0.1:0",
-        )
+        config = vessel_config(sitl, gcs="udpin:127.0.0.1:0")
         vessel = Vessel(config)
         runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 120.0}, daemon=True)
         runner.start()

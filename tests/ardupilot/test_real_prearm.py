@@ -13,11 +13,10 @@ Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
 from __future__ import annotations
 
 import pytest
-from sitl_harness import HOME, RoverSitl, sitl_binary
+from sitl_harness import RoverSitl, sitl_binary, vessel_config
 
-from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.onboard.autopilot_start import StartOptions
-from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
+from bob_autonomy.onboard.vessel import VehicleError, Vessel
 from sitl.vehicles import autopilot_safety
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
@@ -32,14 +31,7 @@ BAD_CALIBRATION = {"RC3_MIN": 1400}
 def test_a_pre_arm_failure_is_reported_in_ardupilots_words_which_the_simulated_autopilot_shares(tmp_path) -> None:
     with RoverSitl(BINARY, "omni", tmp_path, params=BAD_CALIBRATION) as sitl:
         sitl.wait_initialised()
-        config = VesselConfig(
-            vehicle=f"tcp:127.0.0.1:{sitl.serial0}",
-            system_id=1,
-            origin=(HOME[0], HOME[1]),
-            behavior=BehaviorChoice(behavior="bob-rule", params={"H": 1, "goal": [0.0, 0.0]}),
-            arm_timeout_s=40.0,
-            autopilot=StartOptions(ready_timeout_s=40.0),
-        )
+        config = vessel_config(sitl, arm_timeout_s=40.0, autopilot=StartOptions(ready_timeout_s=40.0))
         with pytest.raises(VehicleError) as raised:
             Vessel(config).run(duration_s=120.0)
         said = [text for text in sitl.seen.texts if text.startswith(("PreArm", "Arm"))]

@@ -16,9 +16,8 @@ import time
 
 import numpy as np
 import pytest
-from sitl_harness import HOME, RoverSitl, drive, sitl_binary
+from sitl_harness import HOME, RoverSitl, drive, sitl_binary, vessel_config
 
-from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
 
 BINARY = sitl_binary()
@@ -28,19 +27,6 @@ pytestmark = [
 ]
 ORIGIN = (HOME[0], HOME[1])
 LEG_S = 75.0
-
-
-def _config(sitl: RoverSitl, goal: tuple[float, float], **overrides) -> VesselConfig:
-    params = {"H": 1, "goal": list(goal), "max_speed": 1.5, "speed_scale": 1.0}
-    values = dict(
-        vehicle=f"tcp:127.0.0.1:{sitl.serial0}",
-        system_id=1,
-        origin=ORIGIN,
-        behavior=BehaviorChoice(behavior="bob-rule", params=params),
-        arm_timeout_s=60.0,
-    )
-    values.update(overrides)
-    return VesselConfig(**values)
 
 
 def _drive(sitl: RoverSitl, config: VesselConfig, seconds: float) -> tuple[list, list]:
@@ -54,7 +40,7 @@ def test_omni_buoy_reaches_goals_in_four_directions_and_holds_heading(tmp_path) 
         sitl.wait_initialised()
         all_errors = []
         for goal in corners:
-            track, errors = _drive(sitl, _config(sitl, goal), LEG_S)
+            track, errors = _drive(sitl, vessel_config(sitl, goal), LEG_S)
             all_errors += errors
             held = [np.hypot(*(xy - goal)) for t, xy, _ in track if t > track[-1][0] - 10.0]
             assert held and max(held) < 5.0, f"goal {goal}: last 10 s at {held}"
@@ -112,7 +98,7 @@ def test_sigterm_puts_the_vehicle_at_neutral_within_half_a_second(tmp_path) -> N
 def test_a_buoy_on_a_motorboat_is_refused_with_what_to_change(tmp_path) -> None:
     with RoverSitl(BINARY, "motorboat", tmp_path) as sitl:
         sitl.wait_initialised()
-        vessel = Vessel(_config(sitl, (50.0, 0.0)))
+        vessel = Vessel(vessel_config(sitl, (50.0, 0.0)))
         with pytest.raises(VehicleError, match=r"cannot move sideways"):
             vessel.run(duration_s=5.0)
         assert not any(armed for _t, _mode, armed in sitl.seen.modes)
@@ -122,7 +108,7 @@ def test_without_an_rc_receiver_the_vessel_still_arms_and_drives(tmp_path) -> No
     # A buoy has no transmitter: ArduPilot boots in radio failsafe; neutral overrides first, then arming.
     with RoverSitl(BINARY, "omni", tmp_path, params={"SIM_RC_FAIL": 1}) as sitl:
         sitl.wait_initialised()
-        track, _errors = _drive(sitl, _config(sitl, (20.0, 0.0)), 45.0)
+        track, _errors = _drive(sitl, vessel_config(sitl, (20.0, 0.0)), 45.0)
         assert track and np.hypot(*(track[-1][1] - (20.0, 0.0))) < 5.0
         assert math.isfinite(track[-1][2])
 
@@ -133,7 +119,7 @@ def test_an_autopilot_taking_mavlink_only_from_its_ground_station_is_started_and
     params = {"MAV_GCS_SYSID": 200, "MAV_OPTIONS": 1}
     with RoverSitl(BINARY, "omni", tmp_path, params=params) as sitl:
         sitl.wait_initialised()
-        track, _errors, vessel = drive(sitl, _config(sitl, (20.0, 0.0)), 45.0)
+        track, _errors, vessel = drive(sitl, vessel_config(sitl, (20.0, 0.0)), 45.0)
         assert vessel.autopilot.profile.gcs_system_id == 200
         assert track and np.hypot(*(track[-1][1] - (20.0, 0.0))) < 5.0, track[-1]
 
@@ -144,7 +130,7 @@ def test_skid_steer_rover_as_an_ebot_reaches_goals_with_gps(tmp_path) -> None:
     with RoverSitl(BINARY, "skid", tmp_path) as sitl:
         sitl.wait_initialised()
         for goal in [(30.0, 0.0), (30.0, 30.0)]:
-            track, errors = _drive(sitl, _config(sitl, goal, kind="ebot"), 50.0)
+            track, errors = _drive(sitl, vessel_config(sitl, goal, kind="ebot"), 50.0)
             held = [np.hypot(*(xy - goal)) for t, xy, _ in track if t > track[-1][0] - 5.0]
             assert held and max(held) < 5.0, f"goal {goal}: last 5 s at {held}"
             assert float(np.median(errors)) < 2.0
