@@ -149,6 +149,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         self._frame_version = self._failsafe_version = -1  # parameter-derived caches, stale at first
         self._servo_cache: tuple[tuple, list[int]] | None = None  # see servo_outputs
         self._pilot_cache: tuple[tuple, tuple[float, float, float]] | None = None  # see _read_pilot
+        self._prearm_cache: tuple[tuple, bool] | None = None  # see _sensor_bits
 
     # -- parameters that act at once -----------------------------------------------------------------------
 
