@@ -21,8 +21,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from vessel_helpers import ground_station_vessel_config
 
-from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.core.clock import ScaledWallClock
 from bob_autonomy.core.interfaces import AgentState, Pose
 from bob_autonomy.ground.gcs import MavlinkCodec
@@ -35,7 +35,7 @@ from bob_autonomy.network.mesh import (
     packet_agent_id,
 )
 from bob_autonomy.onboard.vehicle_link import VehicleLink
-from bob_autonomy.onboard.vessel import Vessel, VesselConfig
+from bob_autonomy.onboard.vessel import Vessel
 from firmware_bridge import commands
 from firmware_bridge.commands import Encoder
 from firmware_bridge.decoder import TelemetryDecoder, contains_mavlink_frame
@@ -45,7 +45,6 @@ from firmware_bridge.telemetry import TelemetryEncoder
 pytestmark = pytest.mark.xdist_group("realtime")
 
 KEY = hashlib.sha256(b"fleet key for the link tests").digest()
-ORIGIN = (1.3405, 103.9560)
 
 
 def udp_socket() -> socket.socket:
@@ -153,16 +152,8 @@ def _vessel(tmp_path: Path, *, key: bool) -> Vessel:
     if key:
         key_file = tmp_path / "bob.key"
         key_file.write_bytes(KEY)
-    config = VesselConfig(
-        vehicle=f"udpout:127.0.0.1:{port}",
-        system_id=2,
-        behavior=BehaviorChoice(behavior="bob-rule", params={"p0": 10.0}),
-        origin=ORIGIN,
-        estimator="simple",
-        controller="simple",
-        gcs="udpin:127.0.0.1:0",
-        signing_key_file=None if key_file is None else str(key_file),
-        autostart=False,
+    config = ground_station_vessel_config(
+        port, system_id=2, estimator="simple", signing_key_file=None if key_file is None else str(key_file)
     )
     return Vessel(config, clock=ScaledWallClock(50.0))  # heartbeats at 50 Hz of wall time
 

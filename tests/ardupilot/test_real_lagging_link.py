@@ -12,10 +12,7 @@ import logging
 
 import numpy as np
 import pytest
-from sitl_harness import HOME, LaggingTcpProxy, RoverSitl, drive, sitl_binary
-
-from bob_autonomy.core.behavior_config import BehaviorChoice
-from bob_autonomy.onboard.vessel import VesselConfig
+from sitl_harness import LaggingTcpProxy, RoverSitl, drive, sitl_binary, vessel_config
 
 BINARY = sitl_binary()
 pytestmark = [
@@ -32,14 +29,7 @@ def test_the_vessel_arms_and_drives_real_ardupilot_over_a_link_that_answers_two_
         LaggingTcpProxy(sitl.serial0, to_target_s=TO_AUTOPILOT_S, from_target_s=FROM_AUTOPILOT_S) as proxy,
     ):
         sitl.wait_initialised()
-        params = {"H": 1, "goal": [20.0, 0.0], "max_speed": 1.0, "speed_scale": 1.0}
-        config = VesselConfig(
-            vehicle=f"tcp:127.0.0.1:{proxy.port}",
-            system_id=1,
-            origin=(HOME[0], HOME[1]),
-            behavior=BehaviorChoice(behavior="bob-rule", params=params),
-            arm_timeout_s=60.0,
-        )
+        config = vessel_config(sitl, (20.0, 0.0), vehicle=f"tcp:127.0.0.1:{proxy.port}")
         track, _errors, vessel = drive(sitl, config, 45.0)
     # The autopilot itself says it was armed, and took the vessel's overrides: its throttle or lateral input
     # (channels 3 and 4 of the omni frame) left neutral.
