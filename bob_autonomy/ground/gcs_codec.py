@@ -53,6 +53,22 @@ _HEADER_LEN = {_V1: mavlink.HEADER_LEN_V1, _V2: mavlink.HEADER_LEN_V2}
 _MAX_BUFFER = 65536
 
 
+def _as_mavlink2(frame: bytes) -> bytes:
+    """A whole MAVLink 1 frame re-framed as an unsigned MAVLink 2 one (the frame itself when it is not whole or
+    its message id is unknown). MAVLink 2 drops the payload's trailing zero bytes but keeps at least one."""
+    header = _HEADER_LEN[_V1]
+    if len(frame) < header + 2 or len(frame) != header + frame[1] + 2:
+        return frame
+    msg_type = mavlink.mavlink_map.get(frame[5])
+    if msg_type is None:
+        return frame
+    payload = frame[header : header + frame[1]].rstrip(b"\0") or b"\0"
+    seq, system, component, msg_id = frame[2], frame[3], frame[4], frame[5]
+    out = bytearray((_V2, len(payload), 0, 0, seq, system, component, msg_id, 0, 0)) + payload
+    out += frame_checksum(out, len(out), msg_type.crc_extra).to_bytes(2, "little")
+    return bytes(out)
+
+
 # -- signing keys ---------------------------------------------------------------------------------------------
 
 
@@ -203,10 +219,17 @@ class MavlinkCodec:
         redone (the flag is under the checksum) and this link's signature (link id, the next timestamp, the first
         48 bits of SHA-256(key + frame + link id + timestamp)), so that a ground station taking only signed frames
         (MAVProxy's `set allow_unsigned 0`) hears the autopilot behind the vessel too, and no one can pass off
-        frames as the autopilot's on this link. A MAVLink 1 frame (no room for a signature), one already signed,
-        or one of a message id the dialect does not know (no CRC_EXTRA to redo its checksum) is left as it is."""
+        frames as the autopilot's on this link. A MAVLink 1 frame (an autopilot port set to MAVLink 1, e.g.
+        ArduPilot's SERIALn_PROTOCOL 1) has no room for a signature: it is re-framed as MAVLink 2 first (same
+        sequence, system, component, message and payload; the payload's zero tail cut as MAVLink 2 does), so a
+        strict ground station hears it too. A frame already signed, or one of a message id the dialect does not
+        know (no CRC_EXTRA to redo its checksum), is left as it is."""
         key = self.signing_key
-        if key is None or len(frame) < _HEADER_LEN[_V2] + 2 or frame[0] != _V2 or frame[2] & _SIGNED:
+        if key is None:
+            return frame
+        if frame[:1] == bytes((_V1,)):
+            frame = _as_mavlink2(frame)
+        if len(frame) < _HEADER_LEN[_V2] + 2 or frame[0] != _V2 or frame[2] & _SIGNED:
             return frame
         msg_type = mavlink.mavlink_map.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))
         if msg_type is None:

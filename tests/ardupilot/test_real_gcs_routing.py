@@ -62,3 +62,37 @@ def test_mavproxy_fetches_and_sets_real_ardupilots_parameters_through_a_signed_v
     print(f"\nMAVProxy through the vessel: {counts} parameters; vessel {vessel.stats}; gcs {counters.security()}")
     assert counters.bad_signature == 0 and counters.replay_rejected == 0 and counters.authenticated > 0
     assert vessel.stats.routed_to_gcs > ardupilot_count and vessel.stats.routed_to_vehicle > 0
+
+
+def test_a_strict_mavproxy_hears_an_autopilot_whose_port_speaks_mavlink1_through_a_signed_vessel(tmp_path) -> None:
+    """SERIAL0_PROTOCOL 1: ArduPilot sends MAVLink 1 frames, which have no room for a signature. Routed as they
+    came, MAVProxy with `allow_unsigned 0` dropped every one and heard only the vessel (1:191); the vessel now
+    re-frames them as MAVLink 2 and signs them (MavlinkCodec.sign_routed)."""
+    key_file = tmp_path / "bob.key"
+    key_file.write_text(PASSPHRASE + "\n")
+    with RoverSitl(BINARY, "omni", tmp_path, params={"SERIAL0_PROTOCOL": 1}) as sitl:
+        sitl.wait_initialised()
+        config = vessel_config(sitl, gcs="udpin:127.0.0.1:0", signing_key_file=str(key_file))
+        vessel = Vessel(config)
+        markers: list[int] = []  # the first byte of each autopilot frame the vessel routed, as it arrived
+        sign_routed = vessel.gcs.codec.sign_routed
+
+        def spy(frame: bytes) -> bytes:
+            markers.append(frame[0])
+            return sign_routed(frame)
+
+        vessel.gcs.codec.sign_routed = spy
+        runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 90.0}, daemon=True)
+        runner.start()
+        session = signed_session(vessel.gcs_link.local_address[1], tmp_path, PASSPHRASE, component=1)
+        try:
+            detected, counts = heard(session, 60.0, lambda found, sets: len(found) == 2 and max(sets, default=0) > 500)
+        finally:
+            session.close()
+            vessel.stop()
+            runner.join(10.0)
+    assert detected == {"1:1", "1:191"}
+    assert max(counts) == sitl.seen.param_count  # every one of ArduPilot's parameters, fetched over MAVLink 1
+    v1 = sum(marker == 0xFE for marker in markers)
+    print(f"\nrouted {len(markers)} autopilot frames, {v1} of them MAVLink 1; gcs {vessel.gcs.counters.security()}")
+    assert v1 > 0.9 * len(markers) > 500
