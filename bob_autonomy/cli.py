@@ -130,6 +130,13 @@ def _parser() -> argparse.ArgumentParser:
         "--force-arm", action="store_true", help="arm even when the autopilot's checks fail (never on water)"
     )
     run.add_argument(
+        "--no-recover-after-reboot",
+        dest="recover_after_reboot",
+        action="store_false",
+        help="when the autopilot restarts under us (brownout, watchdog), stay at neutral instead of setting it up "
+        "and arming it again",
+    )
+    run.add_argument(
         "--arm-timeout", type=float, default=60.0, help="give up when the autopilot will not arm for this long, s"
     )
     run.add_argument(
@@ -337,6 +344,7 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         arm_timeout_s=args.arm_timeout,
         autopilot=StartOptions(force_arm=args.force_arm, ready_timeout_s=args.ready_timeout),
         on_stop=args.on_stop,
+        recover_after_reboot=args.recover_after_reboot,
         top_speed_mps=args.top_speed,
     )
 

@@ -52,6 +52,8 @@ class StandInVehicle(threading.Thread):
             except TimeoutError:
                 pass
             now = self.clock.now()
+            if now < last:  # rebooted: its clock starts again
+                last = next_gps = next_att = now
             thrust = self.vehicle.actuator(now)
             self.applied.append(thrust)
             c, s = math.cos(self.heading), math.sin(self.heading)
@@ -71,6 +73,13 @@ class StandInVehicle(threading.Thread):
                 out += self.vehicle.telemetry.attitude(now, self.heading)
             if out:
                 self.sock.sendto(out, self.peer)
+
+    def reboot(self) -> None:
+        """The autopilot restarts (a brownout): a fresh one, disarmed, at its default streams, with its clock since
+        boot (time_boot_ms) from zero again; the boat stays where it is."""
+        kind = self.vehicle.kind
+        self.clock = ScaledWallClock(SCALE)
+        self.vehicle = SimulatedVehicle(self.vehicle.system_id, kind, 45.0 if kind == "buoy" else 1.0, failsafe_s=1.0)
 
     def close(self) -> None:
         self.running.clear()

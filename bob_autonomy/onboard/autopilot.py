@@ -120,6 +120,16 @@ OVERRIDE_ECHO_LAG_S = 5.0
 
 RECOVERED_FACTOR = 1.25  # a slow stream counts as recovered at this multiple of its slowest usable rate
 
+# Every Rover mode by number (Rover/mode.h `Mode::Number`), for messages: those we set and the others it may be in.
+ROVER_MODE_NAMES = {number: name for name, number in ROVER_MODES.items()} | {
+    6: "FOLLOW", 7: "SIMPLE", 8: "DOCK", 9: "CIRCLE", 12: "SMART_RTL", 16: "INITIALISING"
+}  # fmt: skip
+
+# The autopilot's clock since boot (time_boot_ms of ATTITUDE, GLOBAL_POSITION_INT, SYSTEM_TIME, ...) only goes
+# forward while it runs; going back by more than this (s) means it restarted: a brownout, a watchdog, a reboot
+# command. Less is let pass (messages of two streams may arrive slightly out of order).
+REBOOT_BACKSTEP_S = 2.0
+
 
 def message_name(message_id: int) -> str:
     entry = mavlink.mavlink_map.get(message_id)
@@ -373,6 +383,9 @@ class AutopilotSession:
         self.version: object | None = None
         self.rc_in: dict[int, int] = {}
         self.rc_in_t: float | None = None
+        self.boot_s: float | None = None  # the autopilot's newest clock since boot (s)
+        self.reboots = 0  # times that clock went back (REBOOT_BACKSTEP_S)
+        self.last_reboot: tuple[float, float] | None = None  # (clock before, clock after) at the newest reboot, s
         self._slow_warned: set[int] = set()
         self._streams_requested_at: float | None = None
         self.sent: deque = deque(maxlen=128)  # (t, {channel: PWM}) of the overrides we sent (6.5 s at 20 Hz)
@@ -390,6 +403,9 @@ class AutopilotSession:
         self.rates.note(msg.get_msgId(), now)
         name = msg.get_type()
         try:
+            boot_ms = getattr(msg, "time_boot_ms", None)
+            if boot_ms is not None:
+                self._note_boot_time(boot_ms / 1000.0)
             if name == "HEARTBEAT":
                 self.custom_mode = int(msg.custom_mode)
                 self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
@@ -424,6 +440,14 @@ class AutopilotSession:
                 self.rc_in_t = now
         except (AttributeError, TypeError, ValueError, UnicodeError):
             pass  # a message we cannot read is the decoder's business; it never stops the session
+
+    def _note_boot_time(self, boot_s: float) -> None:
+        if self.boot_s is not None and boot_s < self.boot_s - REBOOT_BACKSTEP_S:
+            self.reboots += 1
+            self.last_reboot = (self.boot_s, boot_s)
+            self.prearm_ok = None  # what it said before the restart no longer holds
+            self._streams_requested_at = None
+        self.boot_s = boot_s
 
     def take_ack(self, command: int, since_s: float) -> int | None:
         """The result of the newest COMMAND_ACK for `command` heard since `since_s`, if any."""
@@ -608,10 +632,7 @@ class AutopilotSession:
         return {message_name(m): round(self.rates.rate_hz(m, now_s), 2) for m in self.streams}
 
     def mode_name(self) -> str:
-        for name, number in ROVER_MODES.items():
-            if number == self.custom_mode:
-                return name
-        return f"mode {self.custom_mode}"
+        return ROVER_MODE_NAMES.get(self.custom_mode, f"mode {self.custom_mode}")
 
     def ignoring_overrides(self, now_s: float, window_s: float = 1.5, lag_s: float = OVERRIDE_ECHO_LAG_S) -> bool:
         """True when the autopilot's latest RC_CHANNELS (younger than `window_s`) matches none of the overrides we

@@ -61,6 +61,7 @@ class VehicleError(RuntimeError):
 
 ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
 STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
+RESTART_RETRY_S = 10.0  # wall seconds between start-ups of a restarted autopilot that would not come into service
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,9 @@ class VesselConfig:
     tlog: str | None = None
     autopilot: StartOptions = field(default_factory=StartOptions)
     on_stop: str = "neutral"
+    # An autopilot that restarts under us (brownout, watchdog, reboot command) comes back disarmed: set it up and
+    # arm it again (True), or hold at neutral until someone arms it (False).
+    recover_after_reboot: bool = True
     top_speed_mps: float | None = None
 
     @property
@@ -175,6 +179,9 @@ class VesselStats:
     reading_errors: int = 0
     step_errors: int = 0
     silent_alarms: int = 0
+    link_reopens: int = 0  # the vehicle link lost (TCP closed, serial port gone) and opened again
+    autopilot_reboots: int = 0  # the autopilot's clock since boot went back: it restarted under us
+    restarts: int = 0  # start-ups run again after a reboot (bob_autonomy.onboard.autopilot_start)
     routed_to_gcs: int = 0
     routed_to_vehicle: int = 0
     estimator_resets: int = 0
@@ -269,6 +276,11 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._heading_ref: float | None = None
         self._ignoring_since: float | None = None
         self._ignoring_warned = False
+        self._link_lost_at: float | None = None
+        self._next_reopen_at = 0.0
+        self._armed_seen: bool | None = None
+        self._reboots_seen = 0
+        self._restart_due: float | None = None  # wall clock (time.monotonic) of the next start-up after a reboot
 
     # -- link ------------------------------------------------------------------------------------------
 
@@ -394,6 +406,15 @@ class Vessel(VesselLinks, AutopilotDriving):
             logger.warning("vehicle %d heard again", self.config.system_id)
             self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, f"vehicle {self.config.system_id} heard again")
             self._alarm = False
+            self._request_streams()  # a restarted autopilot streams its defaults only (and its clock tells)
+        if self._restart_due is not None:
+            if time.monotonic() >= self._restart_due:
+                self._restart()
+            self._send(self._override(np.zeros(2)))
+            return
+        if self.autopilot.armed is False:
+            self._send(self._override(np.zeros(2)))  # disarmed: neutral until it is armed again
+            return
         start = time.perf_counter()
         if not self.has_fix:
             self.has_fix = bool(np.isfinite(self.pipeline.estimate(now).position).all())
@@ -427,6 +448,25 @@ class Vessel(VesselLinks, AutopilotDriving):
         self.stats.compute_latency_s.append(done - start)
         if self._last_reading_wall_s is not None:
             self.stats.telemetry_to_command_s.append(done - self._last_reading_wall_s)
+
+    def _restart(self) -> None:
+        """Bring a restarted autopilot into service again (`arm`'s start-up); if it will not come, say so and try
+        again RESTART_RETRY_S later, at neutral meanwhile."""
+        self.stats.restarts += 1
+        try:
+            self.arm()
+        except VehicleError as error:
+            self._restart_due = time.monotonic() + RESTART_RETRY_S
+            text = f"{error}; trying again in {RESTART_RETRY_S:g} s"
+            logger.error("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+            return
+        self._restart_due = None
+        self._armed_seen = self.autopilot.armed
+        self.has_fix = False  # the estimator may have been rebuilt for what the autopilot now says
+        text = f"vehicle {self.config.system_id} back in service after its autopilot restarted"
+        logger.warning("%s", text)
+        self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
 
     def run(self, duration_s: float | None = None) -> VesselStats:
         """Arm, then run control steps every dt_s (clock seconds) until `stop()` or `duration_s` has passed."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,7 +19,7 @@ from firmware_bridge.commands import ROVER_MODES
 if TYPE_CHECKING:
     from bob_autonomy.ground.gcs import GcsComponent
     from bob_autonomy.onboard.autopilot import AutopilotSession
-    from bob_autonomy.onboard.vessel import VesselConfig
+    from bob_autonomy.onboard.vessel import VesselConfig, VesselStats
 
 logger = logging.getLogger("bob_autonomy.onboard.vessel")
 
@@ -39,6 +40,12 @@ class AutopilotDriving:
     _obeying: bool
     _ignoring_since: float | None
     _ignoring_warned: bool
+    _armed_seen: bool | None
+    _reboots_seen: int
+    _restart_due: float | None
+    stats: VesselStats
+
+    def _send(self, data: bytes) -> None: ...  # VesselLinks
 
     def _override(self, actuator: np.ndarray, *, hold_heading: bool = False) -> bytes:
         """RC overrides for a buoy's body-frame thrust (x forward, y left; N), a motorboat's (throttle, steering)
@@ -67,9 +74,50 @@ class AutopilotDriving:
         u = -HEADING_KP * error + HEADING_KD * a.yaw_rate_radps
         return float(np.clip(u, -HEADING_STEER_MAX, HEADING_STEER_MAX))
 
+    def _request_streams(self) -> None:
+        for frame in self.autopilot.stream_requests():
+            self._send(frame)
+
+    def _watch_restart_and_arming(self) -> None:
+        """Say when the autopilot restarted under us (its clock since boot went back) and schedule its start-up
+        again (`recover_after_reboot`); say when it is disarmed or armed while we drive, and ask for our streams
+        again on a disarm (a restarted autopilot streams its defaults only, and their clock shows the restart)."""
+        a, system = self.autopilot, self.config.system_id
+        if a.reboots > self._reboots_seen:
+            self._reboots_seen = a.reboots
+            self.stats.autopilot_reboots += 1
+            before, after = a.last_reboot or (math.nan, math.nan)
+            recover = self.config.recover_after_reboot
+            text = (
+                f"autopilot of vehicle {system} restarted (its clock since boot went from {before:.1f} s to "
+                f"{after:.1f} s): "
+                + ("bringing it into service again" if recover else "neutral until it is armed again (no recovery)")
+            )
+            logger.error("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_ALERT, text)
+            if recover:
+                self._restart_due = time.monotonic()
+        armed = a.armed
+        if armed is None or armed == self._armed_seen:
+            return
+        if self._armed_seen is True and self._restart_due is None:
+            text = (
+                f"vehicle {system} disarmed (a ground station, a failsafe, its RC or a restart?): neutral until it "
+                "is armed again"
+            )
+            logger.warning("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+            self._request_streams()
+        elif self._armed_seen is False and armed and self._restart_due is None:
+            text = f"vehicle {system} armed again: driving"
+            logger.warning("%s", text)
+            self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+        self._armed_seen = armed
+
     def _watch_autopilot(self, now: float) -> None:
         """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground
         station), our overrides not taken, or telemetry too slow for the estimator."""
+        self._watch_restart_and_arming()
         a = self.autopilot
         wanted = ROVER_MODES[self.config.autopilot.mode]
         obeying = a.custom_mode is None or a.custom_mode == wanted

@@ -3,14 +3,17 @@ station and routing frames between the two, as mavlink-router does on a companio
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from typing import TYPE_CHECKING
 
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
 from bob_autonomy.ground.gcs import GcsComponent
 from bob_autonomy.onboard.senses import EbotSenses
 from bob_autonomy.onboard.vehicle_link import VehicleLink
-from firmware_bridge.links import Link, LinkError
+from firmware_bridge.links import Link, LinkError, SerialLink, TcpLink, open_link
 from firmware_bridge.tlog import TlogWriter
 
 if TYPE_CHECKING:
@@ -21,6 +24,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger("bob_autonomy.onboard.vessel")
 
 MAX_ROUTED_BACKLOG = 2000  # frames; a ground-station link that cannot keep up loses the oldest
+REOPEN_PERIOD_S = 1.0  # wall seconds between attempts to reopen a lost vehicle link
 DATAGRAM_BYTES = 1200  # MAVLink frames per UDP datagram up to this size (one frame may be larger)
 
 
@@ -53,6 +57,8 @@ class VesselLinks:
     sensing: EbotSenses | None
     _from_vehicle: list[bytes]
     _last_reading_wall_s: float | None
+    _link_lost_at: float | None  # wall clock (time.monotonic) when the vehicle link was lost; None while it is up
+    _next_reopen_at: float
 
     def _vehicle_message(self, msg) -> None:
         """Every message decoded from the vehicle link: to the tlog, and the autopilot's to the session."""
@@ -68,21 +74,64 @@ class VesselLinks:
     def _send(self, data: bytes) -> None:
         if self.tlog is not None:
             self.tlog.write_frame(data)  # every command is one frame
+        if self._link_lost_at is not None:
+            return  # nothing to write to until the link is reopened (the autopilot's failsafe has the vehicle)
         try:
             self.vehicle_link.write(data)
         except LinkError as error:
-            self.stats.link_errors += 1
-            logger.error("vehicle link write failed (%d so far): %s", self.stats.link_errors, error)
+            self._vehicle_link_failed("write", error)
+
+    def _vehicle_link_failed(self, doing: str, error: LinkError) -> None:
+        """Count a failed read or write. A TCP connection closed by the autopilot (ArduPilot SITL rebooting) or a
+        serial port gone (a USB adapter unplugged, an autopilot losing power) cannot recover by itself: it is
+        closed and reopened every REOPEN_PERIOD_S until it opens again; said once, not at every attempt."""
+        self.stats.link_errors += 1
+        if self._link_lost_at is not None:
+            return
+        if not isinstance(self.vehicle_link, TcpLink | SerialLink):
+            logger.error("vehicle link %s failed (%d so far): %s", doing, self.stats.link_errors, error)
+            return
+        self._link_lost_at = time.monotonic()
+        self._next_reopen_at = self._link_lost_at + REOPEN_PERIOD_S
+        with contextlib.suppress(OSError):
+            self.vehicle_link.close()
+        c = self.config
+        text = f"vehicle {c.system_id} link lost ({error}); reopening {c.vehicle} every {REOPEN_PERIOD_S:g} s"
+        logger.error("%s", text)
+        self.gcs.notify(mavlink.MAV_SEVERITY_CRITICAL, text)
+
+    def _reopen_vehicle_link(self, wait_wall_s: float) -> bool:
+        """Try to reopen a lost vehicle link when an attempt is due (waiting at most `wait_wall_s` for it);
+        True once it is open again."""
+        now = time.monotonic()
+        if now < self._next_reopen_at:
+            time.sleep(min(max(0.0, wait_wall_s), self._next_reopen_at - now))
+            if time.monotonic() < self._next_reopen_at:
+                return False
+        self._next_reopen_at = time.monotonic() + REOPEN_PERIOD_S
+        try:
+            self.vehicle_link = open_link(self.config.vehicle, self.config.baud)
+        except LinkError as error:
+            logger.debug("vehicle link still closed: %s", error)
+            return False
+        lost_for = time.monotonic() - self._link_lost_at
+        self._link_lost_at = None
+        self.stats.link_reopens += 1
+        text = f"vehicle {self.config.system_id} link reopened after {lost_for:.1f} s"
+        logger.warning("%s", text)
+        self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+        return True
 
     def pump(self, wait_wall_s: float = 0.0) -> None:
         """Read and decode what the vehicle sent, waiting at most `wait_wall_s` for the first bytes."""
         timeout = max(0.0, wait_wall_s)
+        if self._link_lost_at is not None and not self._reopen_vehicle_link(timeout):
+            return
         while True:
             try:
                 data = self.vehicle_link.read(65535, timeout)
             except LinkError as error:
-                self.stats.link_errors += 1
-                logger.error("vehicle link read failed (%d so far): %s", self.stats.link_errors, error)
+                self._vehicle_link_failed("read", error)
                 time.sleep(min(timeout, 0.1))
                 return
             if not data:

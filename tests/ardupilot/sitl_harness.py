@@ -175,12 +175,18 @@ class RoverSitl:
             time.sleep(0.2)
         raise RuntimeError("ArduPilot SITL did not initialise")
 
-    def __exit__(self, *exc) -> None:
+    def stop_watching(self) -> None:
+        """Stop the observer (before the autopilot restarts: its connection closes with the process)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2)
+            self._thread = None
         if self.observer is not None:
             self.observer.close()
+            self.observer = None
+
+    def __exit__(self, *exc) -> None:
+        self.stop_watching()
         if self.process is not None and self.process.poll() is None:
             self.process.terminate()
             try:
