@@ -9,10 +9,13 @@ never drove again, and took a disarmed vehicle for one it was driving.
 
 from __future__ import annotations
 
+import os
 import select
 import socket
 import threading
 import time
+import tty
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -243,3 +246,86 @@ def test_the_session_counts_a_restart_when_the_autopilots_clock_goes_back() -> N
     assert session.reboots == 1 and session.last_reboot == pytest.approx((100.4 - 0.9 * REBOOT_BACKSTEP_S, 1.5))
     attitude(1.7)
     assert session.reboots == 1
+
+
+class PtyBridge(threading.Thread):
+    """A serial port for the vessel: a pseudo-terminal reached through a stable path (as udev's /dev/serial/by-id/
+    names a USB adapter), relayed to a UDP endpoint. `unplug()` closes it under the vessel and removes the path;
+    `replug()` makes a new pseudo-terminal behind the same path."""
+
+    def __init__(self, udp_port: int, path) -> None:
+        super().__init__(daemon=True)
+        self.target = ("127.0.0.1", udp_port)
+        self.path = path
+        self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.udp.bind(("127.0.0.1", 0))
+        self.lock = threading.Lock()
+        self.master: int | None = None
+        self.running = True
+        self.replug()
+
+    def replug(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.symlink(os.ttyname(slave), self.path)
+        os.close(slave)  # the vessel opens it by the path
+        with self.lock:
+            self.master = master
+
+    def unplug(self) -> None:
+        with self.lock:
+            os.close(self.master)
+            self.master = None
+        os.unlink(self.path)
+
+    def run(self) -> None:
+        while self.running:
+            with self.lock:
+                fds = [self.udp] + ([self.master] if self.master is not None else [])
+            ready, _, _ = select.select(fds, [], [], 0.05)
+            with self.lock:
+                try:
+                    if self.udp in ready:
+                        data = self.udp.recv(65535)
+                        if self.master is not None:
+                            os.write(self.master, data)
+                    if self.master is not None and self.master in ready:
+                        self.udp.sendto(os.read(self.master, 65535), self.target)
+                except OSError:
+                    pass  # nobody has the port open (EIO), or it was just unplugged
+
+    def close(self) -> None:
+        self.running = False
+        self.join(2.0)
+        if self.master is not None:
+            self.unplug()
+        self.udp.close()
+
+
+def test_an_unplugged_serial_adapter_is_reopened_by_its_path_when_plugged_in_again(tmp_path) -> None:
+    vehicle = StandInVehicle()
+    vehicle.start()
+    bridge = PtyBridge(vehicle.port, tmp_path / "ttyAUTOPILOT")
+    bridge.start()
+    config = replace(_config(0), vehicle=str(bridge.path), baud=57600)
+    vessel = Vessel(config, clock=ScaledWallClock(SCALE))
+    texts = _said(vessel)
+    runner = _run(vessel, 200.0)
+    try:
+        _wait(lambda: vehicle.vehicle.armed and vessel.stats.commands > 20, 20.0, "the vessel never drove")
+        bridge.unplug()
+        _wait(lambda: any("link lost" in t for t in texts), 5.0, "the unplugged port went unnoticed")
+        time.sleep(2.5)  # several reopen attempts fail: the path is gone
+        errors_unplugged = vessel.stats.link_errors
+        bridge.replug()
+        _wait(lambda: vessel.stats.link_reopens == 1, 5.0, "the port was not reopened")
+        x = vehicle.position[0]
+        _wait(lambda: vehicle.position[0] > x + 1.0, 10.0, "the vessel did not drive after the port came back")
+    finally:
+        vessel.stop()
+        runner.join(10.0)
+        bridge.close()
+        vehicle.close()
+    assert errors_unplugged <= 2  # the loss counted once (a read and a write may both see it), not per attempt
+    assert vessel.stats.autopilot_reboots == 0 and vessel.stats.restarts == 0  # the autopilot itself ran on
+    assert any("link reopened after" in t for t in texts)
