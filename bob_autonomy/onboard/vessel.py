@@ -462,6 +462,8 @@ class Vessel(VesselLinks, AutopilotDriving):
             self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
             return
         self._restart_due = None
+        if self._stop.is_set():
+            return  # asked to stop during the start-up: not back in service
         self._armed_seen = self.autopilot.armed
         self.has_fix = False  # the estimator may have been rebuilt for what the autopilot now says
         text = f"vehicle {self.config.system_id} back in service after its autopilot restarted"
