@@ -329,3 +329,34 @@ def test_an_unplugged_serial_adapter_is_reopened_by_its_path_when_plugged_in_aga
     assert errors_unplugged <= 2  # the loss counted once (a read and a write may both see it), not per attempt
     assert vessel.stats.autopilot_reboots == 0 and vessel.stats.restarts == 0  # the autopilot itself ran on
     assert any("link reopened after" in t for t in texts)
+
+
+def test_a_vessel_that_loses_its_gps_fixes_holds_at_neutral_until_they_come_back() -> None:
+    """The autopilot's GPS loses its fix (GPS_RAW_INT fix type 1, as ArduPilot sends it): in MANUAL the autopilot
+    would go on driving whatever we send, on an estimate that only drifts. Before, the vessel drove on."""
+    vehicle = StandInVehicle()
+    vehicle.start()
+    vessel = Vessel(replace(_config(0), vehicle=f"udpout:127.0.0.1:{vehicle.port}"), clock=ScaledWallClock(SCALE))
+    texts = _said(vessel)
+    runner = _run(vessel, 200.0)
+    try:
+        _wait(lambda: vehicle.vehicle.armed and vessel.stats.commands > 20, 20.0, "the vessel never drove")
+        vehicle.no_fix.set()
+        lost_at = vessel.clock.now()
+        _wait(lambda: any("no GPS fix" in t for t in texts), 5.0, "the lost fixes went unnoticed")
+        noticed_after = vessel.clock.now() - lost_at
+        time.sleep(0.5)
+        sent = [channels for _t, channels in list(vessel.autopilot.sent)[-5:]]
+        assert all(abs(channels[3] - 1500) <= 1 and abs(channels[4] - 1500) <= 1 for channels in sent), sent
+        x = vehicle.position[0]
+        time.sleep(0.5)
+        assert abs(vehicle.position[0] - x) < 0.05, "the vehicle moved while its vessel was blind"
+        vehicle.no_fix.clear()
+        _wait(lambda: vehicle.position[0] > x + 1.0, 10.0, "the vessel did not drive once fixes came back")
+    finally:
+        vessel.stop()
+        runner.join(10.0)
+        vehicle.close()
+    assert 5.0 <= noticed_after < 7.0  # GPS_LOST_S, vessel-clock seconds
+    assert vessel.stats.gps_outages == 1 and any("GPS fixes back" in t for t in texts)
+    assert vessel.autopilot.fix_type == 3

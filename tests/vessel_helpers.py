@@ -38,6 +38,7 @@ class StandInVehicle(threading.Thread):
         self.running.set()
         self.muted = threading.Event()  # set: sends nothing
         self.deaf = threading.Event()  # set: hears nothing (a broken wire from the vessel), still sends
+        self.no_fix = threading.Event()  # set: its GPS has no fix (GPS_RAW_INT fix type 1, no satellites)
         self.applied: list[np.ndarray] = []
 
     def run(self) -> None:
@@ -67,7 +68,10 @@ class StandInVehicle(threading.Thread):
             if now >= next_gps:
                 next_gps = now + 0.2
                 lat, lon = self.frame.to_geodetic(self.position[0], self.position[1])
-                out += self.vehicle.telemetry.gps_raw_int(now, float(lat), float(lon), velocity)
+                if self.no_fix.is_set():
+                    out += self.vehicle.telemetry.gps_raw_int(now, 0.0, 0.0, None, fix_type=1, satellites=0)
+                else:
+                    out += self.vehicle.telemetry.gps_raw_int(now, float(lat), float(lon), velocity)
             if now >= next_att:
                 next_att = now + 0.1
                 out += self.vehicle.telemetry.attitude(now, self.heading)

@@ -62,6 +62,9 @@ class VehicleError(RuntimeError):
 ON_STOP_ACTIONS = ("neutral", "hold", "disarm")
 STOP_LINGER_S = 0.6  # wall seconds of neutral commands, read while sent, before the links close
 RESTART_RETRY_S = 10.0  # wall seconds between start-ups of a restarted autopilot that would not come into service
+# A buoy or motorboat that had a position and has had no GPS fix for this long (s) is held at neutral: its estimate
+# only drifts without fixes, and the autopilot, in MANUAL, would drive on whatever we send.
+GPS_LOST_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -182,6 +185,7 @@ class VesselStats:
     link_reopens: int = 0  # the vehicle link lost (TCP closed, serial port gone) and opened again
     autopilot_reboots: int = 0  # the autopilot's clock since boot went back: it restarted under us
     restarts: int = 0  # start-ups run again after a reboot (bob_autonomy.onboard.autopilot_start)
+    gps_outages: int = 0  # times the GPS fixes stopped for GPS_LOST_S while driving
     routed_to_gcs: int = 0
     routed_to_vehicle: int = 0
     estimator_resets: int = 0
@@ -281,6 +285,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._armed_seen: bool | None = None
         self._reboots_seen = 0
         self._restart_due: float | None = None  # wall clock (time.monotonic) of the next start-up after a reboot
+        self._gps_lost = False
 
     # -- link ------------------------------------------------------------------------------------------
 
@@ -412,8 +417,8 @@ class Vessel(VesselLinks, AutopilotDriving):
                 self._restart()
             self._send(self._override(np.zeros(2)))
             return
-        if self.autopilot.armed is False:
-            self._send(self._override(np.zeros(2)))  # disarmed: neutral until it is armed again
+        if self.autopilot.armed is False or self._gps_outage(now):
+            self._send(self._override(np.zeros(2)))  # disarmed, or blind: neutral until that ends
             return
         start = time.perf_counter()
         if not self.has_fix:
@@ -448,6 +453,30 @@ class Vessel(VesselLinks, AutopilotDriving):
         self.stats.compute_latency_s.append(done - start)
         if self._last_reading_wall_s is not None:
             self.stats.telemetry_to_command_s.append(done - self._last_reading_wall_s)
+
+    def _gps_outage(self, now: float) -> bool:
+        """True while a buoy or motorboat that had a position has had no GPS fix for GPS_LOST_S (the autopilot's
+        GPS failed, lost its satellites or its antenna); said when it begins and when fixes come back."""
+        if not isinstance(self.pipeline, BuoyPipeline) or not self.has_fix:
+            return False
+        age = now - float(self.pipeline.last_fix_t[0])
+        lost = age > GPS_LOST_S
+        if lost != self._gps_lost:
+            self._gps_lost = lost
+            system, a = self.config.system_id, self.autopilot
+            if lost:
+                self.stats.gps_outages += 1
+                text = (
+                    f"vehicle {system}: no GPS fix for {age:.1f} s (the autopilot reports fix type {a.fix_type}, "
+                    f"{a.satellites} satellites): neutral until fixes come back"
+                )
+                logger.error("%s", text)
+                self.gcs.notify(mavlink.MAV_SEVERITY_CRITICAL, text)
+            else:
+                text = f"vehicle {system}: GPS fixes back: driving"
+                logger.warning("%s", text)
+                self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+        return lost
 
     def _restart(self) -> None:
         """Bring a restarted autopilot into service again (`arm`'s start-up); if it will not come, say so and try
