@@ -286,6 +286,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._reboots_seen = 0
         self._restart_due: float | None = None  # wall clock (time.monotonic) of the next start-up after a reboot
         self._gps_lost = False
+        self._driving_since = -math.inf  # clock s: when the (last) start-up ended; the first fix is due after it
 
     # -- link ------------------------------------------------------------------------------------------
 
@@ -455,11 +456,12 @@ class Vessel(VesselLinks, AutopilotDriving):
             self.stats.telemetry_to_command_s.append(done - self._last_reading_wall_s)
 
     def _gps_outage(self, now: float) -> bool:
-        """True while a buoy or motorboat that had a position has had no GPS fix for GPS_LOST_S (the autopilot's
-        GPS failed, lost its satellites or its antenna); said when it begins and when fixes come back."""
+        """True while a buoy or motorboat driving on a position has had no GPS fix for GPS_LOST_S (the autopilot's
+        GPS failed, lost its satellites or its antenna; counted from the end of the start-up before the first fix);
+        said when it begins and when fixes come back."""
         if not isinstance(self.pipeline, BuoyPipeline) or not self.has_fix:
             return False
-        age = now - float(self.pipeline.last_fix_t[0])
+        age = now - max(float(self.pipeline.last_fix_t[0]), self._driving_since)
         lost = age > GPS_LOST_S
         if lost != self._gps_lost:
             self._gps_lost = lost
@@ -493,6 +495,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._restart_due = None
         if self._stop.is_set():
             return  # asked to stop during the start-up: not back in service
+        self._driving_since = self.clock.now()
         self._armed_seen = self.autopilot.armed
         self.has_fix = False  # the estimator may have been rebuilt for what the autopilot now says
         text = f"vehicle {self.config.system_id} back in service after its autopilot restarted"
@@ -502,6 +505,7 @@ class Vessel(VesselLinks, AutopilotDriving):
     def run(self, duration_s: float | None = None) -> VesselStats:
         """Arm, then run control steps every dt_s (clock seconds) until `stop()` or `duration_s` has passed."""
         self.arm()
+        self._driving_since = self.clock.now()
         if self.vehicle.last_heartbeat is None:
             self.vehicle.watch.restart()  # the arming handshake was the start-up; silence counts from here
         end = math.inf if duration_s is None else self.clock.now() + duration_s
