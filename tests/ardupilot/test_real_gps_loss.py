@@ -50,7 +50,7 @@ def test_a_vessel_holds_its_boat_while_ardupilots_gps_has_no_fix(tmp_path) -> No
                 time.sleep(0.2)
             _set(sitl, "SIM_GPS1_ENABLE", 0)
             off_at = time.monotonic()
-            deadline = off_at + GPS_LOST_S + 10.0
+            deadline = off_at + 15.0
             while not (vessel.stats.gps_outages and sitl.seen.rc and _at_trim(sitl.seen.rc[-1][1])):
                 assert time.monotonic() < deadline, f"still driving {time.monotonic() - off_at:.1f} s after"
                 time.sleep(0.1)
@@ -71,4 +71,4 @@ def test_a_vessel_holds_its_boat_while_ardupilots_gps_has_no_fix(tmp_path) -> No
             vessel.stop()
             runner.join(15.0)
     print(f"\nheld {held_after:.1f} s after the GPS went off; vessel {vessel.stats.summary()}")
-    assert vessel.stats.gps_outages == 1
+    assert vessel.stats.gps_outages == 1 and GPS_LOST_S <= held_after < GPS_LOST_S + 2.0
