@@ -311,8 +311,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             f"vessel {self.config.system_id}: position estimate diverged ({e.position[0, 0]:.3g}, "
             f"{e.position[0, 1]:.3g}) m against the GPS fix; filter reset ({self.stats.estimator_resets} so far)"
         )
-        logger.error("%s", text)
-        self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+        self._say(mavlink.MAV_SEVERITY_ERROR, text)
 
     def _heartbeat(self, now: float) -> None:
         if now >= self._next_heartbeat_s:
@@ -409,8 +408,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             self._send(self._override(np.zeros(2)))
             return
         if self._alarm:
-            logger.warning("vehicle %d heard again", self.config.system_id)
-            self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, f"vehicle {self.config.system_id} heard again")
+            self._say(mavlink.MAV_SEVERITY_NOTICE, f"vehicle {self.config.system_id} heard again")
             self._alarm = False
             self._request_streams()  # a restarted autopilot streams its defaults only (and its clock tells)
         if self._restart_due is not None:
@@ -472,12 +470,10 @@ class Vessel(VesselLinks, AutopilotDriving):
                     f"vehicle {system}: no GPS fix for {age:.1f} s (the autopilot reports fix type {a.fix_type}, "
                     f"{a.satellites} satellites): neutral until fixes come back"
                 )
-                logger.error("%s", text)
-                self.gcs.notify(mavlink.MAV_SEVERITY_CRITICAL, text)
+                self._say(mavlink.MAV_SEVERITY_CRITICAL, text)
             else:
                 text = f"vehicle {system}: GPS fixes back: driving"
-                logger.warning("%s", text)
-                self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+                self._say(mavlink.MAV_SEVERITY_NOTICE, text)
         return lost
 
     def _restart(self) -> None:
@@ -489,8 +485,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         except VehicleError as error:
             self._restart_due = time.monotonic() + RESTART_RETRY_S
             text = f"{error}; trying again in {RESTART_RETRY_S:g} s"
-            logger.error("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+            self._say(mavlink.MAV_SEVERITY_ERROR, text)
             return
         self._restart_due = None
         if self._stop.is_set():
@@ -499,8 +494,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._armed_seen = self.autopilot.armed
         self.has_fix = False  # the estimator may have been rebuilt for what the autopilot now says
         text = f"vehicle {self.config.system_id} back in service after its autopilot restarted"
-        logger.warning("%s", text)
-        self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+        self._say(mavlink.MAV_SEVERITY_NOTICE, text)
 
     def run(self, duration_s: float | None = None) -> VesselStats:
         """Arm, then run control steps every dt_s (clock seconds) until `stop()` or `duration_s` has passed."""

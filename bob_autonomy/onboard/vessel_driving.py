@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -44,8 +45,8 @@ class AutopilotDriving:
     _reboots_seen: int
     _restart_due: float | None
     stats: VesselStats
-
-    def _send(self, data: bytes) -> None: ...  # VesselLinks
+    _send: Callable[[bytes], None]  # VesselLinks
+    _say: Callable[[int, str], None]  # VesselLinks
 
     def _override(self, actuator: np.ndarray, *, hold_heading: bool = False) -> bytes:
         """RC overrides for a buoy's body-frame thrust (x forward, y left; N), a motorboat's (throttle, steering)
@@ -93,8 +94,7 @@ class AutopilotDriving:
                 f"{after:.1f} s): "
                 + ("bringing it into service again" if recover else "neutral until it is armed again (no recovery)")
             )
-            logger.error("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_ALERT, text)
+            self._say(mavlink.MAV_SEVERITY_ALERT, text)
             if recover:
                 self._restart_due = time.monotonic()
         armed = a.armed
@@ -105,13 +105,11 @@ class AutopilotDriving:
                 f"vehicle {system} disarmed (a ground station, a failsafe, its RC or a restart?): neutral until it "
                 "is armed again"
             )
-            logger.warning("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+            self._say(mavlink.MAV_SEVERITY_WARNING, text)
             self._request_streams()
         elif self._armed_seen is False and armed and self._restart_due is None:
             text = f"vehicle {system} armed again: driving"
-            logger.warning("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+            self._say(mavlink.MAV_SEVERITY_NOTICE, text)
         self._armed_seen = armed
 
     def _watch_autopilot(self, now: float) -> None:
@@ -129,8 +127,7 @@ class AutopilotDriving:
                     f"vehicle {self.config.system_id} is in {a.mode_name()}, not {self.config.autopilot.mode}: it "
                     "ignores our commands (a failsafe or a ground station?); commanding neutral until it is back"
                 )
-            logger.warning("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+            self._say(mavlink.MAV_SEVERITY_WARNING, text)
             self._obeying = obeying
         ignoring = a.ignoring_overrides(now)
         if ignoring and self._ignoring_since is None:
@@ -145,8 +142,6 @@ class AutopilotDriving:
                 f"vehicle {self.config.system_id} does not apply our RC overrides (its RC_CHANNELS differ): "
                 f"check MAV_GCS_SYSID = {a.encoder.mav.srcSystem} and RC_OVERRIDE_TIME > 0"
             )
-            logger.error("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_ERROR, text)
+            self._say(mavlink.MAV_SEVERITY_ERROR, text)
         for text in a.slow_streams(now):
-            logger.warning("%s", text)
-            self.gcs.notify(mavlink.MAV_SEVERITY_WARNING, text)
+            self._say(mavlink.MAV_SEVERITY_WARNING, text)

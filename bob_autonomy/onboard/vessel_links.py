@@ -71,6 +71,10 @@ class VesselLinks:
             if len(self._from_vehicle) > MAX_ROUTED_BACKLOG:
                 del self._from_vehicle[: len(self._from_vehicle) - MAX_ROUTED_BACKLOG]
 
+    def _say(self, severity: int, text: str) -> None:
+        """Tell the ground station (STATUSTEXT, MAV_SEVERITY_*) and the log: `GcsComponent.notify` does both."""
+        self.gcs.notify(severity, text)
+
     def _send(self, data: bytes) -> None:
         if self.tlog is not None:
             self.tlog.write_frame(data)  # every command is one frame
@@ -97,8 +101,7 @@ class VesselLinks:
             self.vehicle_link.close()
         c = self.config
         text = f"vehicle {c.system_id} link lost ({error}); reopening {c.vehicle} every {REOPEN_PERIOD_S:g} s"
-        logger.error("%s", text)
-        self.gcs.notify(mavlink.MAV_SEVERITY_CRITICAL, text)
+        self._say(mavlink.MAV_SEVERITY_CRITICAL, text)
 
     def _reopen_vehicle_link(self, wait_wall_s: float) -> bool:
         """Try to reopen a lost vehicle link when an attempt is due (waiting at most `wait_wall_s` for it);
@@ -118,8 +121,7 @@ class VesselLinks:
         self._link_lost_at = None
         self.stats.link_reopens += 1
         text = f"vehicle {self.config.system_id} link reopened after {lost_for:.1f} s"
-        logger.warning("%s", text)
-        self.gcs.notify(mavlink.MAV_SEVERITY_NOTICE, text)
+        self._say(mavlink.MAV_SEVERITY_NOTICE, text)
         return True
 
     def pump(self, wait_wall_s: float = 0.0) -> None:
