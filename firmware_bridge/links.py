@@ -52,6 +52,9 @@ MAX_FOREIGN_PER_READ = 64  # udpout: foreign datagrams skipped in one read befor
 Address = tuple[str, int]
 
 
+TCP_WRITE_TIMEOUT_S = 5.0  # a TCP write that cannot go out for this long fails the link
+
+
 class LinkError(OSError):
     """A link could not be opened or used; the message names the connection string."""
 
@@ -240,6 +243,7 @@ class TcpLink(Link):
             self.sock = socket.create_connection((host, port), timeout=connect_timeout_s)
         except OSError as exc:
             raise LinkError(f"cannot open {connection!r}: {exc}") from exc
+        self.sock.settimeout(TCP_WRITE_TIMEOUT_S)  # reads wait in select; a write may block this long
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def write(self, data: bytes) -> None:
@@ -295,12 +299,13 @@ class SerialLink(Link):
         self.port.close()
 
 
-def open_link(connection_string: str, baud: int = 115200) -> Link:
-    """Open a link from a connection string (see the module docstring); raises LinkError."""
+def open_link(connection_string: str, baud: int = 115200, connect_timeout_s: float = 5.0) -> Link:
+    """Open a link from a connection string (see the module docstring); raises LinkError. connect_timeout_s: how
+    long a TCP connection may take to be accepted or refused, s."""
     kind, where, port = parse_connection_string(connection_string)
     if kind == "serial":
         return SerialLink(connection_string, where, baud)
     assert port is not None
     if kind == "tcp":
-        return TcpLink(connection_string, where, port)
+        return TcpLink(connection_string, where, port, connect_timeout_s)
     return UdpLink(connection_string, kind, where, port)

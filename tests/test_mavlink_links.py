@@ -123,6 +123,26 @@ def test_tcp_refused_is_a_link_error():
         open_link(f"tcp:127.0.0.1:{port}")
 
 
+def test_a_tcp_peer_that_neither_accepts_nor_refuses_fails_within_the_connect_timeout():
+    """A listener whose accept queue is full drops new SYNs: connect() would wait for the kernel's retries (minutes)
+    without a timeout. The vessel reopens a lost link with a short one so its loop is not held."""
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(0)
+    port = listener.getsockname()[1]
+    queued = [socket.create_connection(("127.0.0.1", port), timeout=1.0)]  # fills the queue of length 0 (+1)
+    try:
+        started = time.monotonic()
+        with pytest.raises(LinkError, match=f"tcp:127.0.0.1:{port}"):
+            for _ in range(3):  # the kernel may still queue one or two more
+                queued.append(open_link(f"tcp:127.0.0.1:{port}", connect_timeout_s=0.3).sock)
+        assert time.monotonic() - started < 3 * 0.3 + 1.0
+    finally:
+        for sock in queued:
+            sock.close()
+        listener.close()
+
+
 def test_parse_connection_string():
     assert parse_connection_string("udpin:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
     assert parse_connection_string("/dev/ttyACM0") == ("serial", "/dev/ttyACM0", None)

@@ -113,7 +113,8 @@ class VesselLinks:
                 return False
         self._next_reopen_at = time.monotonic() + REOPEN_PERIOD_S
         try:
-            self.vehicle_link = open_link(self.config.vehicle, self.config.baud)
+            # A host that neither accepts nor refuses must not hold the loop (and the ground station) for long.
+            self.vehicle_link = open_link(self.config.vehicle, self.config.baud, connect_timeout_s=REOPEN_PERIOD_S / 2)
         except LinkError as error:
             logger.debug("vehicle link still closed: %s", error)
             return False
