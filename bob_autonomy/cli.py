@@ -216,7 +216,7 @@ def _config_value(action: argparse.Action, value: object, where: str) -> object:
         return ValueError(f"{where}: setting {name!r} must be {expected}, got {shown}")
 
     try:
-        if isinstance(action, argparse._StoreTrueAction):
+        if isinstance(action, argparse._StoreTrueAction | argparse._StoreFalseAction):  # the setting's value
             if not isinstance(value, bool):
                 raise wrong("true or false")
             return value

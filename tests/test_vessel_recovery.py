@@ -22,6 +22,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from vessel_helpers import ORIGIN, SCALE, StandInVehicle
 
+from bob_autonomy.cli import _apply_config_file, _parser, config_from_args
 from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.core.clock import ScaledWallClock
 from bob_autonomy.onboard.autopilot import REBOOT_BACKSTEP_S, AutopilotSession
@@ -360,3 +361,22 @@ def test_a_vessel_that_loses_its_gps_fixes_holds_at_neutral_until_they_come_back
     assert 5.0 <= noticed_after < 7.0  # GPS_LOST_S, vessel-clock seconds
     assert vessel.stats.gps_outages == 1 and sum("GPS fixes back" in t for t in texts) == 1
     assert vessel.autopilot.fix_type == 3
+
+
+@pytest.mark.parametrize(("line", "expected"), [("", True), ("recover_after_reboot = false", False)])
+def test_recovery_after_a_reboot_is_a_setting_of_the_vessel_config_file(tmp_path, line: str, expected: bool) -> None:
+    path = tmp_path / "vessel.toml"
+    path.write_text(
+        f'vehicle = "tcp:127.0.0.1:5760"\nsystem_id = 1\norigin = "1.0,2.0"\nbehavior = "bob-rule"\n{line}\n'
+    )
+    args = _apply_config_file(_parser(), ["run", "--config", str(path)])
+    assert config_from_args(args).recover_after_reboot is expected
+    args = _apply_config_file(_parser(), ["run", "--config", str(path), "--no-recover-after-reboot"])
+    assert config_from_args(args).recover_after_reboot is False
+
+
+def test_a_recovery_setting_that_is_not_a_boolean_is_refused_naming_it(tmp_path) -> None:
+    path = tmp_path / "vessel.toml"
+    path.write_text('vehicle = "tcp:127.0.0.1:5760"\nsystem_id = 1\norigin = "1.0,2.0"\nrecover_after_reboot = "no"\n')
+    with pytest.raises(ValueError, match="setting 'recover_after_reboot' must be true or false, got 'no'"):
+        _apply_config_file(_parser(), ["run", "--config", str(path)])
