@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 
 MODELS = {
@@ -36,6 +37,14 @@ HOME = (-35.363261, 149.165230, 584.0, 0.0)
 def sitl_binary() -> Path | None:
     path = os.environ.get("ARDUPILOT_SITL")
     return Path(path) if path and Path(path).is_file() and os.access(path, os.X_OK) else None
+
+
+BINARY = sitl_binary()
+# Every real-SITL test module's marks: skipped without a built `ardurover`, run in the real-time worker.
+NEEDS_SITL = [
+    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
+    pytest.mark.xdist_group("realtime"),
+]
 
 
 def defaults_dir(binary: Path) -> Path:

@@ -22,17 +22,12 @@ import subprocess
 import sys
 import time
 
-import pytest
 from autopilot_helpers import Gcs, run, texts
-from sitl_harness import HOME, RoverSitl, sitl_binary
+from sitl_harness import BINARY, HOME, NEEDS_SITL, RoverSitl
 
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 HOLD = 4
 FAILSAFE_PARAMS = ("RC_OVERRIDE_TIME", "FS_GCS_TIMEOUT", "FS_TIMEOUT", "FS_THR_ENABLE", "FS_ACTION", "FS_OPTIONS")
 KILL_S = 10.0  # when the simulated ground station stops

@@ -17,15 +17,13 @@ import time
 
 import pytest
 from mavproxy_session import MAVPROXY, heard, signed_session
-from sitl_harness import RoverSitl, sitl_binary, vessel_config
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, vessel_config
 
 from bob_autonomy.onboard.vessel import Vessel
 
-BINARY = sitl_binary()
 pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
+    *NEEDS_SITL,
     pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install -e '.[dev]')"),
-    pytest.mark.xdist_group("realtime"),
 ]
 PASSPHRASE = "a long passphrase only the fleet knows"
 

@@ -15,16 +15,11 @@ import threading
 import time
 
 import numpy as np
-import pytest
-from sitl_harness import RoverSitl, local_xy, sitl_binary, vessel_config
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, local_xy, vessel_config
 
 from bob_autonomy.onboard.vessel import GPS_LOST_S, Vessel
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 GOAL = (60.0, 0.0)  # east, north m from HOME
 DRIVING = (2, 3)  # RC_CHANNELS indices of throttle (3) and lateral (4) on the omni frame
 

@@ -11,14 +11,9 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-import pytest
-from sitl_harness import LaggingTcpProxy, RoverSitl, drive, sitl_binary, vessel_config
+from sitl_harness import BINARY, NEEDS_SITL, LaggingTcpProxy, RoverSitl, drive, vessel_config
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 FROM_AUTOPILOT_S, TO_AUTOPILOT_S = 2.0, 0.2
 
 

@@ -17,7 +17,7 @@ import threading
 import time
 
 import pytest
-from sitl_harness import RoverSitl, sitl_binary, vessel_config
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, vessel_config
 
 mavsdk = pytest.importorskip("mavsdk", minversion="4.1", reason="MAVSDK-Python 4.1+ (pip install -e '.[dev]')")
 
@@ -28,11 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from bob_autonomy.onboard.vessel import Vessel  # noqa: E402
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 
 
 def _wait(predicate, timeout_s: float, what: str) -> None:

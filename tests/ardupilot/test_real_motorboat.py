@@ -14,17 +14,12 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-import pytest
-from sitl_harness import HOME, RoverSitl, drive, sitl_binary
+from sitl_harness import BINARY, HOME, NEEDS_SITL, RoverSitl, drive
 
 from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.onboard.vessel import Vessel, VesselConfig
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 ORIGIN = (HOME[0], HOME[1])
 LEG_S = 75.0
 HELD_S, HELD_M, REACHED_M = 15.0, 10.0, 5.0

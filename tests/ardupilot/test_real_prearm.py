@@ -13,18 +13,14 @@ Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
 from __future__ import annotations
 
 import pytest
-from sitl_harness import RoverSitl, sitl_binary, vessel_config
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, vessel_config
 
 from bob_autonomy.onboard.autopilot_start import StartOptions
 from bob_autonomy.onboard.vessel import VehicleError, Vessel
 from sitl.vehicles import autopilot_safety
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 BAD_CALIBRATION = {"RC3_MIN": 1400}
 
 

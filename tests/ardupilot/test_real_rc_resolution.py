@@ -21,16 +21,12 @@ import time
 
 import pytest
 from pymavlink import mavutil
-from sitl_harness import RoverSitl, sitl_binary
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl
 
 from bob_autonomy.onboard.autopilot import CORE_PARAMS, EBOT, MOTORBOAT, AutopilotSession
 from firmware_bridge.commands import Encoder
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 PARAMS = ["FRAME_CLASS", "FRAME_TYPE", "PILOT_STEER_TYPE", "MAV_GCS_SYSID", "RCMAP_ROLL", "RCMAP_THROTTLE"]
 PARAMS += [f"RC{ch}_{what}" for ch in (1, 3) for what in ("MIN", "TRIM", "MAX", "DZ", "REVERSED")]
 

@@ -16,17 +16,12 @@ import threading
 import time
 
 import numpy as np
-import pytest
 from pymavlink import mavutil
-from sitl_harness import RoverSitl, local_xy, sitl_binary, vessel_config
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, local_xy, vessel_config
 
 from bob_autonomy.onboard.vessel import Vessel
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 GOAL = (30.0, 0.0)  # east, north m from HOME
 FORCE_REBOOT_WHILE_ARMED = 20190226  # ArduPilot refuses to reboot when armed without it (GCS_Common.cpp)
 

@@ -16,15 +16,11 @@ import time
 
 import numpy as np
 import pytest
-from sitl_harness import HOME, RoverSitl, drive, sitl_binary, vessel_config
+from sitl_harness import BINARY, HOME, NEEDS_SITL, RoverSitl, drive, vessel_config
 
 from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
 
-BINARY = sitl_binary()
-pytestmark = [
-    pytest.mark.skipif(BINARY is None, reason="set ARDUPILOT_SITL to a built ArduPilot ardurover to run these"),
-    pytest.mark.xdist_group("realtime"),
-]
+pytestmark = NEEDS_SITL
 ORIGIN = (HOME[0], HOME[1])
 LEG_S = 75.0
 
