@@ -9,7 +9,14 @@ from numpy.typing import NDArray
 from bob_autonomy.control.velocity_control import BuoyModel
 from bob_autonomy.estimation.buoy_params import _AS_MODEL_OUTCOME, _DRAG, _EYE2, _EYE_NX, _NX, BuoyEkfParams
 from bob_autonomy.estimation.buoy_updates import _BuoyUpdates
-from bob_autonomy.estimation.kalman_rows import _healthy_rows, _transpose, kalman_predict_rows, wrap_angle
+from bob_autonomy.estimation.kalman_rows import (
+    _healthy_rows,
+    _transpose,
+    any_row,
+    every_row,
+    kalman_predict_rows,
+    wrap_angle,
+)
 from bob_autonomy.estimation.row_replay import _FAILED, _PREDICTED
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
@@ -84,10 +91,13 @@ class _BuoyProcess(_BuoyUpdates):
             held = t < self.t_thrust[idx] + p.thrust_hold_s
             command = np.where(held[:, None], self.thrust[idx], np.nan)
         commanded = ~np.isnan(command[:, 0]) & self.heading_init[idx]
-        body_thrust = np.full((idx.size, 2), np.nan)
-        if commanded.any():
-            rows = np.flatnonzero(commanded)
-            body_thrust[rows] = self._slew(idx[rows], t[rows], command[rows], span[rows])
+        if every_row(commanded):  # (the usual case: every row driven, no rows to pick)
+            body_thrust = self._slew(idx, t, command, span)
+        else:
+            body_thrust = np.full((idx.size, 2), np.nan)
+            if any_row(commanded):
+                rows = commanded.nonzero()[0]
+                body_thrust[rows] = self._slew(idx[rows], t[rows], command[rows], span[rows])
         failed = self._propagate(idx, t, accel, thrust)
         if accel is not None:
             self.accel[idx], self.t_accel[idx] = accel, t
@@ -96,30 +106,39 @@ class _BuoyProcess(_BuoyUpdates):
         codes = np.where(failed, _FAILED, _PREDICTED)
         if accel is not None:
             balance = commanded & self.pos_init[idx] & ~failed
-            if balance.any():
-                rows = np.flatnonzero(balance)
+            if every_row(balance):
+                codes = self._drag_balance(idx, accel, body_thrust, span)
+            elif any_row(balance):
+                rows = balance.nonzero()[0]
                 codes[rows] = self._drag_balance(idx[rows], accel[rows], body_thrust[rows], span[rows])
         return codes
 
     def _slew(self, idx: IntArray, t: FloatArray, command: FloatArray, span: FloatArray) -> FloatArray:
         """Turn the believed nozzle towards the commands (world frame, N) at thrust_slew_radps since it was last
         turned; return the mean body-frame thrust over the interval `span` (s) that ends at t."""
-        magnitude = np.hypot(command[:, 0], command[:, 1])
+        cx, cy = command[:, 0], command[:, 1]
+        magnitude = np.hypot(cx, cy)
         nozzle = self.nozzle[idx]
-        target = np.where(magnitude > 1e-9, np.arctan2(command[:, 1], command[:, 0]) - self.x[idx, 4], nozzle)
+        target = np.where(magnitude > 1e-9, np.arctan2(cy, cx) - self.x[idx, 4], nozzle)
         turn = wrap_angle(target - nozzle)
         since = t - self.t_nozzle[idx]
         most = self.params.thrust_slew_radps * np.where(np.isnan(since), span, since)
-        reached = np.abs(turn) <= most
+        size = np.abs(turn)
+        reached = size <= most
         delta = np.where(reached, turn, np.copysign(most, turn))
         # Fraction of the interval spent turning (the rest at the end angle); mean direction along the arc.
-        turning = np.where(reached, np.abs(turn) / np.maximum(most, 1e-12), 1.0)
+        turning = np.where(reached, size / np.maximum(most, 1e-12), 1.0)
         half = 0.5 * delta
-        arc = np.where(np.abs(half) > 1e-9, np.sin(half) / np.where(np.abs(half) > 1e-9, half, 1.0), 1.0)
-        mid, end = nozzle + half, nozzle + delta
-        mean = turning[:, None] * arc[:, None] * np.column_stack((np.cos(mid), np.sin(mid)))
-        mean += (1.0 - turning)[:, None] * np.column_stack((np.cos(end), np.sin(end)))
-        self.nozzle[idx], self.t_nozzle[idx] = wrap_angle(end), t
+        curved = np.abs(half) > 1e-9
+        arc = np.where(curved, np.sin(half) / np.where(curved, half, 1.0), 1.0)
+        angles = np.empty((idx.size, 2))
+        angles[:, 0], angles[:, 1] = nozzle + half, nozzle + delta  # the arc's middle and its end
+        cos, sin = np.cos(angles), np.sin(angles)
+        along, rest = turning * arc, 1.0 - turning
+        mean = np.empty((idx.size, 2))
+        mean[:, 0] = along * cos[:, 0] + rest * cos[:, 1]
+        mean[:, 1] = along * sin[:, 0] + rest * sin[:, 1]
+        self.nozzle[idx], self.t_nozzle[idx] = wrap_angle(angles[:, 1]), t
         return magnitude[:, None] * mean
 
     def _propagate(
@@ -130,7 +149,7 @@ class _BuoyProcess(_BuoyUpdates):
         it lasts. Returns which rows had a sub-step undone (non-finite or not positive definite)."""
         p = self.params
         k = idx.size
-        if not (t_to - self.t[idx] > _TIME_EPS_S).any():  # every row already there (a reading at the filter's time)
+        if not any_row(t_to - self.t[idx] > _TIME_EPS_S):  # every row already there (a reading at the filter's time)
             self.t[idx] = np.maximum(self.t[idx], t_to)
             return np.zeros(k, dtype=bool)
         t_now = self.t[idx].copy()
@@ -139,7 +158,7 @@ class _BuoyProcess(_BuoyUpdates):
         no_heading = ~self.heading_init[idx]
         while True:
             active = t_to - t_now > _TIME_EPS_S
-            if not active.any():
+            if not any_row(active):
                 break
             end = t_to.copy()
             if accel is not None:
@@ -161,7 +180,11 @@ class _BuoyProcess(_BuoyUpdates):
             h = seg / np.maximum(steps, 1)
             noise_span = seg if a_span is None else a_span
             for j in range(int(steps.max())):
-                rows = np.flatnonzero(steps > j)
+                stepping = steps > j
+                if every_row(stepping):  # (the usual case: one sub-step for every row)
+                    failed |= self._step(idx, h, a, force, noise_span)
+                    continue
+                rows = stepping.nonzero()[0]
                 failed[rows] |= self._step(idx[rows], h[rows], a[rows], force[rows], noise_span[rows])
             t_now = np.where(active, end, t_now)
         self.t[idx] = np.maximum(self.t[idx], t_to)
@@ -180,16 +203,19 @@ class _BuoyProcess(_BuoyUpdates):
         with_thrust = ~with_accel & ~np.isnan(thrust[:, 0])
         a = np.zeros((m, 2))
         da_dx = np.zeros((m, 2, _NX))  # Jacobian of the acceleration over ground with respect to the state
-        if with_accel.any():  # a = R(heading) (a_body - bias)
+        if any_row(with_accel):  # a = R(heading) (a_body - bias)
             c, s, rot = _rotations(x[:, 4])
             body = accel_body - x[:, 8:10]
-            a_accel = np.column_stack((c * body[:, 0] - s * body[:, 1], s * body[:, 0] + c * body[:, 1]))
-            a_accel[~with_accel] = 0.0
-            rot[~with_accel] = 0.0
+            bx, by = body[:, 0], body[:, 1]
+            a_accel = np.empty((m, 2))
+            a_accel[:, 0], a_accel[:, 1] = c * bx - s * by, s * bx + c * by
+            if not every_row(with_accel):
+                a_accel[~with_accel] = 0.0
+                rot[~with_accel] = 0.0
             a += a_accel
             da_dx[:, 0, 4], da_dx[:, 1, 4] = -a_accel[:, 1], a_accel[:, 0]
             da_dx[:, :, 8:10] = -rot
-        if with_thrust.any():  # M a = T - f(v - d)
+        if any_row(with_thrust):  # M a = T - f(v - d)
             drag, jac = _drag_rows(x[:, 2:4] - x[:, 6:8], p.model)
             mask = with_thrust / p.model.mass_kg
             a += np.where(with_thrust[:, None], thrust - drag, 0.0) / p.model.mass_kg
@@ -210,7 +236,7 @@ class _BuoyProcess(_BuoyUpdates):
         x_next[:, 4] = wrap_angle(x[:, 4] + x[:, 5] * h)
         p_next = kalman_predict_rows(p_cov, f_jac, q_cov)
         ok = _healthy_rows(x_next, p_next)
-        if ok.all():
+        if every_row(ok):
             self.x[idx], self.P[idx] = x_next, p_next
         else:
             self.x[idx[ok]], self.P[idx[ok]] = x_next[ok], p_next[ok]
@@ -221,7 +247,7 @@ class _BuoyProcess(_BuoyUpdates):
         the pattern [[h^3/3, h^2/2], [h^2/2, h]] on (position, velocity) per axis that the velocity PSD scales,
         and the fixed process noise (yaw rate, drift and bias random walks). (10, 10) each, cached, when every
         row has the same h (a fleet in lockstep); else (m, 10, 10)."""
-        if h.size and (h == h[0]).all():
+        if h.size and every_row(h == h[0]):
             key = float(h[0])
             cached = self._template_cache.get(key)
             if cached is None:
@@ -249,7 +275,9 @@ class _BuoyProcess(_BuoyUpdates):
         dh_dw = -rot_t @ jac / mass  # d h / d v_mid
         drot_t = np.empty_like(rot_t)
         drot_t[:, 0, 0], drot_t[:, 0, 1], drot_t[:, 1, 0], drot_t[:, 1, 1] = -s, c, -c, -s
-        dvmid_dpsi = -half[:, None] * np.column_stack((-a_world[:, 1], a_world[:, 0]))
+        across = np.empty_like(a_world)  # a_world a quarter turn counter-clockwise: d(R (a_body - b)) / d heading
+        across[:, 0], across[:, 1] = -a_world[:, 1], a_world[:, 0]
+        dvmid_dpsi = -half[:, None] * across
         h_jac = np.zeros((idx.size, 2, _NX))
         h_jac[:, :, 2:4] = dh_dw
         h_jac[:, :, 6:8] = -dh_dw

@@ -11,7 +11,14 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from bob_autonomy.estimation.kalman_rows import CHI2_999, _healthy_rows, kalman_update_rows, wrap_angle
+from bob_autonomy.estimation.kalman_rows import (
+    CHI2_999,
+    _healthy_rows,
+    any_row,
+    every_row,
+    kalman_update_rows,
+    wrap_angle,
+)
 from bob_autonomy.estimation.row_replay import _FAILED, _FUSED, _GATED, _RESET
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
@@ -76,10 +83,14 @@ class _RowFusion:
         passed = inverted & (d2 <= CHI2_999[z.shape[1]])
         gated = inverted & ~passed
         healthy = passed & _healthy_rows(x1, p1)
+        if every_row(healthy):  # the usual case: every reading fused, no gate run left
+            self.gate_run[idx, kind] = 0
+            self.x[idx], self.P[idx] = x1, p1
+            return np.full(idx.size, _FUSED)
         codes = np.where(healthy, _FUSED, np.where(gated, _GATED, _FAILED))
         run = np.where(passed, 0, self.gate_run[idx, kind] + gated)
         reset = gated & (run >= self.params.gate_reset_count)
-        if reset.any():
+        if any_row(reset):
             rows = idx[reset]
             if reset_cols is not None:
                 self._set_states(rows, reset_cols, z[reset], r_cov[reset] if r_cov.ndim == 3 else r_cov)

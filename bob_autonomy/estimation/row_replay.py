@@ -10,6 +10,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from bob_autonomy.estimation.kalman_rows import any_row, every_row
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray
 
 # What came of a reading: the names the single filters' methods return; the codes are what a bank logs.
@@ -79,23 +80,23 @@ class _RowReplay:
             return np.concatenate(
                 [self._submit(kind, idx[i : i + 1], t[i : i + 1], _take(data, [i])) for i in range(k)]
             )
-        codes = np.full(k, _REJECTED)
         good = np.isfinite(t)
         for values in data:
             if values is not None:
                 good &= np.isfinite(values.reshape(k, -1)).all(axis=1)
-        if not good.all():
-            np.add.at(self._rejected, idx[~good], 1)
         clock = self.t[idx]
         in_order = good & ~(t < clock)  # NaN clock (no reading yet): in order
+        if every_row(in_order):  # the usual case: every reading finite and in time order
+            return self._run(kind, idx, t, data)
+        codes = np.full(k, _REJECTED)
+        if not every_row(good):
+            np.add.at(self._rejected, idx[~good], 1)
         late = good & (t < clock)
-        if in_order.all():
-            codes = self._run(kind, idx, t, data)
-        elif in_order.any():
+        if any_row(in_order):
             rows = np.flatnonzero(in_order)
             codes[rows] = self._run(kind, idx[rows], t[rows], _take(data, rows))
-        if late.any():
-            rows = np.flatnonzero(late)
+        if any_row(late):
+            rows = late.nonzero()[0]
             codes[rows] = self._replay(kind, idx[rows], t[rows], _take(data, rows))
         return codes
 
