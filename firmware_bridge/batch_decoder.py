@@ -212,7 +212,7 @@ def _decode_columnar(
         owners = [believed[i][0] for i in members]
         agents = np.array([decoders[k].agent for k in owners], dtype=np.intp)
         t_s = np.array([times[k] for k in owners], dtype=np.float64)
-        rows = _COLUMN_CONVERTERS[msg_id](records, agents, t_s, [decoders[k].counters for k in owners], columns)
+        rows = _COLUMN_CONVERTERS[msg_id](records, agents, t_s, [decoders[k] for k in owners], columns)
         for i, row in zip(members, rows, strict=True):
             slots[i] = row
     return slots
@@ -224,14 +224,18 @@ def _place(rows: list[object], where: np.ndarray, placed: list[Row]) -> None:
         rows[i] = row
 
 
-def _gps_raw_int(records, agents, t_s, counters, columns: Columns) -> list[object]:
+def _gps_raw_int(records, agents, t_s, decoders, columns: Columns) -> list[object]:
     """TelemetryDecoder._gps_raw_int, per row: lat, lon deg; velocity (east, north) m/s from speed and course
-    (the trigonometry in Python's math, as the decoder does it, for the same last bit)."""
+    (the trigonometry in Python's math, as the decoder does it, for the same last bit); a repeated fix (its
+    time_usec again, `TelemetryDecoder.fresh_fix`) is not read, each decoder's rows taken in stream order."""
     rows: list[object] = [None] * len(records)
-    fixed = records["fix_type"] >= 2
-    for j in np.flatnonzero(~fixed):
-        counters[j].no_fix += 1
-    moving = fixed & (records["vel"] != UINT16_MAX) & (records["cog"] != UINT16_MAX)
+    read = records["fix_type"] >= 2  # a fix, and not one already read
+    for j, (fix, stamp) in enumerate(zip(read.tolist(), records["time_usec"].tolist(), strict=True)):
+        if not fix:
+            decoders[j].counters.no_fix += 1
+        elif not decoders[j].fresh_fix(stamp):
+            read[j] = False
+    moving = read & (records["vel"] != UINT16_MAX) & (records["cog"] != UINT16_MAX)
     lat, lon = records["lat"] / 1e7, records["lon"] / 1e7
     if moving.any():
         speed = records["vel"][moving] / 100.0
@@ -240,7 +244,7 @@ def _gps_raw_int(records, agents, t_s, counters, columns: Columns) -> list[objec
         placed = columns.add((GpsFix, (True, True, True, True, True)), agents=agents[moving], t_s=t_s[moving],
                              lat_deg=lat[moving], lon_deg=lon[moving], velocity_mps=velocity)  # fmt: skip
         _place(rows, moving, placed)
-    still = fixed & ~moving
+    still = read & ~moving
     if still.any():
         placed = columns.add((GpsFix, (True, True, True, True, False)), agents=agents[still], t_s=t_s[still],
                              lat_deg=lat[still], lon_deg=lon[still])  # fmt: skip
@@ -248,12 +252,12 @@ def _gps_raw_int(records, agents, t_s, counters, columns: Columns) -> list[objec
     return rows
 
 
-def _global_position_int(records, agents, t_s, counters, columns: Columns) -> list[object]:
+def _global_position_int(records, agents, t_s, decoders, columns: Columns) -> list[object]:
     """TelemetryDecoder._global_position_int (the decoder wants the fused position): velocity from NED cm/s."""
     rows: list[object] = [None] * len(records)
     known = (records["lat"] != 0) | (records["lon"] != 0)
     for j in np.flatnonzero(~known):
-        counters[j].no_fix += 1  # the autopilot has no position (yet)
+        decoders[j].counters.no_fix += 1  # the autopilot has no position (yet)
     if known.any():
         r = records[known]
         velocity = np.column_stack((r["vy"] / 100.0, r["vx"] / 100.0))  # NED x north, y east -> east, north
@@ -263,7 +267,7 @@ def _global_position_int(records, agents, t_s, counters, columns: Columns) -> li
     return rows
 
 
-def _attitude(records, agents, t_s, counters, columns: Columns) -> list[object]:
+def _attitude(records, agents, t_s, decoders, columns: Columns) -> list[object]:
     """TelemetryDecoder._attitude: heading = wrap(pi/2 - yaw), the decoder's arithmetic (numpy's remainder is
     Python's float modulo); no reading where the yaw is not finite."""
     rows: list[object] = [None] * len(records)
@@ -277,7 +281,7 @@ def _attitude(records, agents, t_s, counters, columns: Columns) -> list[object]:
     return rows
 
 
-def _imu(records, agents, t_s, counters, columns: Columns) -> list[object]:
+def _imu(records, agents, t_s, decoders, columns: Columns) -> list[object]:
     """TelemetryDecoder._imu: body acceleration (x forward, y left) m/s^2 from mG, yaw rate (CCW) from mrad/s."""
     g = STANDARD_GRAVITY_MPS2 / 1000.0
     accel = np.column_stack((records["xacc"] * g, -records["yacc"].astype(np.int64) * g))

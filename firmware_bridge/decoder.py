@@ -130,6 +130,7 @@ class DecoderCounters:
     frame_bytes: int = 0
     pending_bytes: int = 0
     no_fix: int = 0
+    repeated_fix: int = 0  # GPS_RAW_INT carrying a fix already read (its time_usec again): not read twice
     other_system: int = 0
     other_component: int = 0
     not_yet_known: int = 0
@@ -247,6 +248,7 @@ class TelemetryDecoder:
         self._agents = np.array([agent], dtype=np.intp)
         self.message_hook: Callable[[object], None] | None = None  # sees every decoded message (e.g. a tlog)
         self._unread = _unread_ids(fused_position)  # checked and counted by `feed`, not decoded
+        self.last_fix_usec = 0  # time_usec of the last GPS_RAW_INT fix read (0: none, or a GPS without time)
 
     # -- framing ---------------------------------------------------------------------------------------
 
@@ -371,6 +373,8 @@ class TelemetryDecoder:
         if msg.fix_type < 2:
             self.counters.no_fix += 1
             return None
+        if not self.fresh_fix(int(msg.time_usec)):
+            return None
         velocity = None
         if msg.vel != UINT16_MAX and msg.cog != UINT16_MAX:
             speed = msg.vel / 100.0
@@ -378,6 +382,20 @@ class TelemetryDecoder:
             velocity = np.array([[speed * math.sin(course), speed * math.cos(course)]])
         agents, times = self._rows(t_s)
         return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
+
+    def fresh_fix(self, time_usec: int) -> bool:
+        """Whether a GPS_RAW_INT fix stamped time_usec is new; counts a repeat in `counters.repeated_fix`.
+
+        ArduPilot sends GPS_RAW_INT at the rate asked whatever its GPS's rate, each copy stamped with the time of
+        the fix it holds (libraries/AP_GPS/AP_GPS.cpp send_mavlink_gps_raw: last_fix_time_ms): asked 10 Hz of a
+        5 Hz GPS, Rover SITL sent each fix twice with the same time_usec; and a GPS gone silent is repeated, same
+        time and position, until its 4 s timeout. Read again with a later arrival time, a copy would be fused as
+        a second, newer measurement of an old position. time_usec 0 (a GPS without time) is never a repeat."""
+        if time_usec and time_usec == self.last_fix_usec:
+            self.counters.repeated_fix += 1
+            return False
+        self.last_fix_usec = time_usec
+        return True
 
     def _global_position_int(self, msg, t_s: float) -> GpsFix | None:
         if not self.fused_position:

@@ -96,9 +96,10 @@ class TelemetryEncoder:
         *,
         fix_type: int = mavlink.GPS_FIX_TYPE_3D_FIX,
         satellites: int = 12,
-        hdop: float = 0.9,
+        hdop: float | None = 0.9,
     ) -> bytes:
-        """GPS_RAW_INT: position (deg), ground velocity (east, north) m/s as speed and course over ground."""
+        """GPS_RAW_INT: position (deg), ground velocity (east, north) m/s as speed and course over ground; hdop
+        None: unknown (UINT16_MAX)."""
         vel, cog = UINT16_MAX, UINT16_MAX
         if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
@@ -111,7 +112,7 @@ class TelemetryEncoder:
             round(lat_deg * 1e7),
             round(lon_deg * 1e7),
             0,
-            min(UINT16_MAX - 1, round(hdop * 100)),
+            UINT16_MAX if hdop is None else min(UINT16_MAX - 1, round(hdop * 100)),
             UINT16_MAX,
             vel,
             cog,

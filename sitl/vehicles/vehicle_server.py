@@ -232,7 +232,7 @@ class VehicleServer:
 
         readings: {"buoy": ..., "ebot": ...} as `VehiclePhysics.sense` returns (agents index within a kind).
         """
-        frames = [bytearray(e.vehicle.housekeeping(t_s)) for e in self.endpoints]
+        frames = [bytearray() for _ in self.endpoints]
         for kind, r in readings.items():
             encode_readings(
                 r,
@@ -242,8 +242,9 @@ class VehicleServer:
                 self.rows[kind],
                 metres_per_tick=self.metres_per_tick,
                 fused_position=True,
-                ticked=True,
             )
+        for endpoint, data in zip(self.endpoints, frames, strict=True):
+            data[:0] = endpoint.vehicle.housekeeping(t_s)  # its streams, with this step's readings
         if ebot_senses is not None and self.rows[EBOT].size:
             ranges, light = ebot_senses
             encode_senses(t_s, self.vehicles, frames, self.rows[EBOT], ranges, light, EBOT_SONAR_RANGE_M)

@@ -87,10 +87,17 @@ class TelemetryStreams:
         return self.telemetry.system_time(self._t)
 
     def _build_gps_raw_int(self) -> bytes:
+        """As ArduPilot sends it (libraries/AP_GPS/AP_GPS.cpp send_mavlink_gps_raw): at its interval whatever the
+        GPS's rate, stamped with the time of the fix it holds, so a fix goes out again until a newer one comes;
+        when no fix has come for GPS_TIMEOUT_MS (4 s) the GPS state is cleared (AP_GPS::update_instance): NO_GPS,
+        no position, unknown HDOP, still the last fix's time. Nothing before the first fix."""
         if not self._gps:
             return b""
-        _, lat, lon, velocity = self._gps
-        return self.telemetry.gps_raw_int(self._t, lat, lon, velocity)
+        t_fix, lat, lon, velocity = self._gps
+        if self.has_fix():
+            return self.telemetry.gps_raw_int(t_fix, lat, lon, velocity)
+        cleared = m.GPS_FIX_TYPE_NO_GPS  # and speed and course 0, as the cleared state has them
+        return self.telemetry.gps_raw_int(t_fix, 0.0, 0.0, (0.0, 0.0), fix_type=cleared, satellites=0, hdop=None)
 
     def _build_global_position_int(self) -> bytes:
         if not self._gps:
@@ -160,13 +167,10 @@ class TelemetryStreams:
         mav_type = m.MAV_TYPE_SURFACE_BOAT if boat else m.MAV_TYPE_GROUND_ROVER
         return self.telemetry.heartbeat(mav_type, self.armed, self.mode, base_flags=flags, state=state)
 
-    def stream(self, t_s: float, *, tick: bool = True) -> bytes:
+    def stream(self, t_s: float) -> bytes:
         """Everything due at t_s for every listener: announcements, then each scheduled message whose interval has
-        come and whose reading is newer than its last copy ("ardupilot" streams). tick=False: the autopilot's clock
-        already ran to t_s (`housekeeping(t_s)` just now, nothing received since: running it again changes
-        nothing, and each run costs about 3 % of the lockstep MAVLink time)."""
-        if tick:
-            self._tick(t_s)
+        come and whose reading is newer than its last copy ("ardupilot" streams; GPS_RAW_INT whenever due)."""
+        self._tick(t_s)
         out = bytearray(self.outbox)
         self.outbox.clear()
         if self.streams != "ardupilot":
@@ -208,8 +212,9 @@ class TelemetryStreams:
 
 
 # The reading each message is made from (sent only when that reading is newer than the message's last copy).
+# GPS_RAW_INT is not among them: ArduPilot repeats a fix with its own time (`_build_gps_raw_int`).
 _READING_OF: dict[int, str] = {
-    m.MAVLINK_MSG_ID_GPS_RAW_INT: "_gps", m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: "_gps",
+    m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: "_gps",
     m.MAVLINK_MSG_ID_VFR_HUD: "_gps", m.MAVLINK_MSG_ID_ATTITUDE: "_compass", m.MAVLINK_MSG_ID_RAW_IMU: "_imu",
     m.MAVLINK_MSG_ID_SCALED_IMU: "_imu", m.MAVLINK_MSG_ID_WHEEL_DISTANCE: "_wheels",
     m.MAVLINK_MSG_ID_DISTANCE_SENSOR: "_ranges",

@@ -24,20 +24,18 @@ def encode_readings(
     *,
     metres_per_tick: float = 1.0,
     fused_position: bool = False,
-    ticked: bool = False,
 ) -> None:
-    """Give each vehicle its readings and append to frames[row] what it sends: with "sensor-rate" streams each
-    reading's message at once (SCALED_IMU, GPS_RAW_INT and, when `fused_position`, GLOBAL_POSITION_INT for ground
-    stations, ATTITUDE, WHEEL_DISTANCE of ticks * metres_per_tick); with "ardupilot" streams whatever its schedule
-    says is due. A reading's agent k is vehicle rows[k] (rows None: k itself). ticked: every vehicle's clock has
-    just run to t_s (`housekeeping(t_s)`, nothing received since), so its streams need not run it again."""
-    touched: dict[int, None] = {}
+    """Give each vehicle its readings; with "sensor-rate" streams also append to frames[row] each reading's message
+    at once (SCALED_IMU, GPS_RAW_INT and, when `fused_position`, GLOBAL_POSITION_INT for ground stations,
+    ATTITUDE, WHEEL_DISTANCE of ticks * metres_per_tick). A reading's agent k is vehicle rows[k] (rows None: k
+    itself). Then call each vehicle's `housekeeping(t_s)` once: its streams send what is due, this step's
+    readings among it (before, the streams ran first, and a message due then went out with the last step's
+    reading: GPS_RAW_INT, which ArduPilot repeats at its interval, would wait a whole step for the new fix)."""
 
     def vehicle_rows(agents):
         return [(i, int(k) if rows is None else int(rows[k])) for i, k in enumerate(agents)]
 
     def direct(row: int) -> bool:
-        touched[row] = None
         return vehicles[row].streams == "sensor-rate"
 
     if readings.imu is not None:
@@ -75,9 +73,6 @@ def encode_readings(
             vehicles[row].observe("wheels", t_s, distances)
             if direct(row):
                 frames[row] += vehicles[row].telemetry.wheel_distance(t_s, distances)
-    for row in touched:
-        if vehicles[row].streams == "ardupilot":
-            frames[row] += vehicles[row].stream(t_s, tick=not ticked)
 
 
 def encode_senses(

@@ -121,8 +121,10 @@ class MavlinkTransport:
     def up(self, readings: SensorReadings, t_s: float) -> list[object]:
         """Encode each vehicle's new readings (and its 1 Hz housekeeping) as telemetry; returns the readings the
         vessels decode from it."""
-        frames = [bytearray(vehicle.housekeeping(t_s)) for vehicle in self.vehicles]
-        encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick, ticked=True)
+        frames = [bytearray() for _ in self.vehicles]
+        encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick)
+        for vehicle, data in zip(self.vehicles, frames, strict=True):
+            data[:0] = vehicle.housekeeping(t_s)  # its streams, with this step's readings (before them, as sent)
         # Decoded all at once (firmware_bridge.batch_decoder), fused as one batch per kind and round
         # (sitl.vehicles.reading_batches).
         decoded, columns = receive_all(self.links, [bytes(data) for data in frames])
