@@ -56,13 +56,25 @@ def _int16(value: float) -> int:
 
 
 class TelemetryEncoder:
-    """One vehicle's telemetry frames, sent as (system_id, component 1: the autopilot). Times t_s are the
-    vehicle's seconds since boot (the decoder ignores them: it stamps readings at reception)."""
+    """One vehicle's telemetry frames, sent as (system_id, component 1: the autopilot). Times t_s are on the
+    caller's clock, s; the frames carry the vehicle's time since boot, t_s - boot_s (the decoder stamps readings at
+    reception; it uses the vehicle's times to tell a repeated GPS fix, and a restart, from new ones)."""
 
-    def __init__(self, system_id: int, component_id: int = mavlink.MAV_COMP_ID_AUTOPILOT1) -> None:
+    def __init__(
+        self, system_id: int, component_id: int = mavlink.MAV_COMP_ID_AUTOPILOT1, *, boot_s: float = 0.0
+    ) -> None:
+        self.boot_s = float(boot_s)
         self.encoder = Encoder(system_id, component_id)
         self.mav = self.encoder.mav
         self._text_id = 0  # the id of the last chunked STATUSTEXT
+
+    def _usec(self, t_s: float) -> int:
+        """The vehicle's time since boot at t_s, us (0 before boot)."""
+        return _usec(t_s - self.boot_s)
+
+    def _ms(self, t_s: float) -> int:
+        """The vehicle's time since boot at t_s, ms (0 before boot; uint32, wrapping)."""
+        return _ms(t_s - self.boot_s)
 
     def pack(self, message) -> bytes:
         """Any pymavlink message as one frame from this vehicle (protocol replies: PARAM_VALUE, MISSION_*)."""
@@ -107,7 +119,7 @@ class TelemetryEncoder:
             cog = round(math.degrees(math.atan2(east, north)) * 100.0) % 36000
         return self.encoder.frame(
             mavlink.MAVLink_gps_raw_int_message,
-            _usec(t_s),
+            self._usec(t_s),
             fix_type,
             round(lat_deg * 1e7),
             round(lon_deg * 1e7),
@@ -138,7 +150,7 @@ class TelemetryEncoder:
             hdg = round(math.degrees(yaw_from_heading(heading_rad)) * 100.0) % 36000
         return self.encoder.frame(
             mavlink.MAVLink_global_position_int_message,
-            _ms(t_s),
+            self._ms(t_s),
             round(lat_deg * 1e7),
             round(lon_deg * 1e7),
             0,
@@ -158,13 +170,13 @@ class TelemetryEncoder:
         max_cm = round(max_m * 100.0)
         current = max_cm + 1 if not math.isfinite(distance_m) else min(max_cm + 1, round(distance_m * 100.0))
         return self.encoder.frame(mavlink.MAVLink_distance_sensor_message,
-            _ms(t_s), round(min_m * 100.0), max_cm, current, mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,
+            self._ms(t_s), round(min_m * 100.0), max_cm, current, mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,
             int(sensor_id), mavlink.MAV_SENSOR_ROTATION_CUSTOM, 255,
         )  # fmt: skip
 
     def light(self, t_s: float, left: float, right: float) -> bytes:
         """The two light readings as NAMED_VALUE_FLOAT "light_l" and "light_r" (W/m^2)."""
-        ms = _ms(t_s)
+        ms = self._ms(t_s)
         named = mavlink.MAVLink_named_value_float_message
         return self.encoder.frame(named, ms, b"light_l", float(left)) + self.encoder.frame(
             named, ms, b"light_r", float(right)
@@ -174,7 +186,7 @@ class TelemetryEncoder:
         """ATTITUDE, level: yaw from our heading, yawspeed clockwise-positive (rad/s)."""
         return self.encoder.frame(
             mavlink.MAVLink_attitude_message,
-            _ms(t_s),
+            self._ms(t_s),
             0.0,
             0.0,
             yaw_from_heading(heading_rad),
@@ -188,7 +200,7 @@ class TelemetryEncoder:
         to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
         return self.encoder.frame(
             mavlink.MAVLink_scaled_imu_message,
-            _ms(t_s),
+            self._ms(t_s),
             _int16(accel_body_mps2[0] * to_mg),
             _int16(-accel_body_mps2[1] * to_mg),
             -1000,  # 1 g down (z down)
@@ -204,24 +216,24 @@ class TelemetryEncoder:
         """RAW_IMU as ArduPilot fills it (GCS_Common.cpp send_raw_imu: mG and mrad/s, FRD), from our level IMU."""
         to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
         return self.encoder.frame(mavlink.MAVLink_raw_imu_message,
-            _usec(t_s), _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), -1000,
+            self._usec(t_s), _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), -1000,
             0, 0, _int16(-gyro_z_radps * 1000.0), 0, 0, 0, 0, 0,
         )  # fmt: skip
 
     def wheel_distance(self, t_s: float, distance_m: Sequence[float], count: int = 2) -> bytes:
         """WHEEL_DISTANCE with `count` wheels (left, right), cumulative metres."""
         distances = [float(distance_m[0]), float(distance_m[1])] + [0.0] * 14
-        return self.encoder.frame(mavlink.MAVLink_wheel_distance_message, _usec(t_s), int(count), distances)
+        return self.encoder.frame(mavlink.MAVLink_wheel_distance_message, self._usec(t_s), int(count), distances)
 
     def rc_channels(self, t_s: float, pwm_us: Sequence[int], channel_count: int) -> bytes:
         """RC_CHANNELS: the autopilot's RC inputs (us; 0 = none), 18 channels, RSSI unknown (255)."""
         values = _uint16s(pwm_us, 18)
-        return self.encoder.frame(mavlink.MAVLink_rc_channels_message, _ms(t_s), int(channel_count), *values, 255)
+        return self.encoder.frame(mavlink.MAVLink_rc_channels_message, self._ms(t_s), int(channel_count), *values, 255)
 
     def servo_output_raw(self, t_s: float, pwm_us: Sequence[int]) -> bytes:
         """SERVO_OUTPUT_RAW: the outputs SERVO1..16 (us; 0 = no output)."""
         values = _uint16s(pwm_us, 16)
-        return self.encoder.frame(mavlink.MAVLink_servo_output_raw_message, _usec(t_s) & 0xFFFFFFFF, 0, *values)
+        return self.encoder.frame(mavlink.MAVLink_servo_output_raw_message, self._usec(t_s) & 0xFFFFFFFF, 0, *values)
 
     def home_position(self, t_s: float, lat_e7: int, lon_e7: int, alt_m: float = 0.0) -> bytes:
         """HOME_POSITION as ArduPilot sends it (GCS_Common.cpp send_home_position): lat/lon degE7, altitude mm,
@@ -239,7 +251,7 @@ class TelemetryEncoder:
             0.0,
             0.0,
             0.0,
-            _usec(t_s),
+            self._usec(t_s),
         )
 
     def autopilot_version(self, capabilities: int, flight_sw_version: int, custom_version: bytes, uid: int) -> bytes:
@@ -298,7 +310,7 @@ class TelemetryEncoder:
 
     def system_time(self, t_s: float, unix_time_s: float = 0.0) -> bytes:
         """SYSTEM_TIME: Unix time us (0 when unknown) and time since boot ms."""
-        return self.encoder.frame(mavlink.MAVLink_system_time_message, max(0, int(unix_time_s * 1e6)), _ms(t_s))
+        return self.encoder.frame(mavlink.MAVLink_system_time_message, max(0, int(unix_time_s * 1e6)), self._ms(t_s))
 
     def message_interval(self, message_id: int, interval_us: int) -> bytes:
         """MESSAGE_INTERVAL (reply to MAV_CMD_GET_MESSAGE_INTERVAL): -1 = off, 0 = not available."""

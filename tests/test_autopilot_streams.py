@@ -38,8 +38,28 @@ def test_set_message_interval_speeds_a_message_up_but_never_past_its_sensor() ->
     assert ack.result == m.MAV_RESULT_ACCEPTED
     messages = run(v, 0.0, 10.0)
     assert count(messages, "ATTITUDE") == 100  # 10 Hz from a 10 Hz compass
-    assert count(messages, "GPS_RAW_INT") == 50  # 20 Hz asked, the GPS gives 5 Hz
+    # 20 Hz asked of a 5 Hz GPS: as ArduPilot, every fix four times, each copy stamped with the fix's time
+    gps = of_type(messages, "GPS_RAW_INT")
+    assert len(gps) == 200
+    assert len({g.time_usec for g in gps}) == 50
+    assert all(g.time_usec % 200_000 == 0 for g in gps)  # the GPS's times, 0.2 s apart
     assert count(messages, "RAW_IMU") == 10  # untouched
+
+
+def test_gps_raw_int_after_the_gps_timeout_is_ardupilots_cleared_state() -> None:
+    """AP_GPS::update_instance: no GPS message for GPS_TIMEOUT_MS (4 s) clears the state: NO_GPS, no position,
+    HDOP unknown; send_mavlink_gps_raw still stamps it with the last fix's time."""
+    v, gcs = _buoy(), Gcs()
+    v.receive(gcs.long(m.MAV_CMD_SET_MESSAGE_INTERVAL, m.MAVLINK_MSG_ID_GPS_RAW_INT, 100_000), 0.0)
+    run(v, 0.0, 2.0)
+    last_fix_usec = round(1.8 * 1e6)
+    quiet = of_type(run(v, 2.0, 8.0, gps=False), "GPS_RAW_INT")
+    assert len(quiet) == 60  # still at 10 Hz
+    held = [g for g in quiet if g.fix_type == m.GPS_FIX_TYPE_3D_FIX]
+    cleared = [g for g in quiet if g.fix_type == m.GPS_FIX_TYPE_NO_GPS]
+    assert len(held) + len(cleared) == 60 and 38 <= len(held) <= 42  # the fix of t = 1.8 s kept until 5.8 s
+    assert {g.time_usec for g in quiet} == {last_fix_usec}
+    assert all((g.lat, g.lon, g.eph, g.vel, g.satellites_visible) == (0, 0, 65535, 0, 0) for g in cleared)
 
 
 @pytest.mark.parametrize(

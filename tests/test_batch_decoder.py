@@ -23,6 +23,7 @@ def _random_telemetry(rng: np.random.Generator, encoder: TelemetryEncoder, count
     """`count` frames of the kinds a vehicle sends, with edge values: no fix, no velocity, NaN and extreme
     values, a zero position."""
     out = bytearray()
+    fix_times = [0.0, float(rng.uniform(0, 100))]  # a GPS without time (0), and a fix repeated (as ArduPilot does)
     for _ in range(count):
         kind = rng.integers(12)
         t = float(rng.uniform(0, 100))
@@ -31,7 +32,8 @@ def _random_telemetry(rng: np.random.Generator, encoder: TelemetryEncoder, count
             velocity = None if special else tuple(rng.normal(0, 2, 2))
             fix = int(rng.choice([0, 1, 3])) if rng.random() < 0.2 else 3
             lat, lon = rng.uniform(-89, 89), rng.uniform(-179, 179)
-            out += encoder.gps_raw_int(t, lat, lon, velocity, fix_type=fix)
+            t_fix = fix_times[int(rng.integers(2))] if rng.random() < 0.5 else t
+            out += encoder.gps_raw_int(t_fix, lat, lon, velocity, fix_type=fix)
         elif kind == 1:
             lat, lon = (0.0, 0.0) if special else (rng.uniform(-89, 89), rng.uniform(-179, 179))
             out += encoder.global_position_int(t, lat, lon, tuple(rng.normal(0, 200, 2)), rng.uniform(-4, 4))
@@ -119,13 +121,14 @@ def test_batch_decoding_gives_feeds_counters_and_readings_bit_for_bit(seed: int)
 def test_every_column_wise_kind_is_exercised() -> None:
     """The random telemetry above reaches every column-wise path, and its special cases, at least once."""
     rng = np.random.default_rng(0)
-    kinds, no_fix = set(), 0
+    kinds, no_fix, repeated = set(), 0, 0
     for _ in SEEDS:
         _, batched, chunks = _fleet(rng, 9)
         got, _ = decode_batch(batched, chunks)
         kinds |= {r.key for rows in got for r in rows if isinstance(r, Row)}
         no_fix += sum(d.counters.no_fix for d in batched)
-    assert no_fix > 0
+        repeated += sum(d.counters.repeated_fix for d in batched)
+    assert no_fix > 0 and repeated > 0
     names = {(kind.__name__, present[-1]) for kind, present in kinds}
     assert names == {("GpsFix", True), ("GpsFix", False), ("CompassReading", True), ("ImuReading", True)}
 

@@ -45,14 +45,21 @@ def test_every_byte_went_through_firmware_bridge(two_links: dict) -> None:
     # The vessels asked for their streams as bob-autonomy does (the vehicles stream at ArduPilot's 1 Hz defaults
     # until asked). Each sensor message comes with every reading (its rate, capped by the rate asked and by one
     # reading per step: sitl/vehicles/sensors.py), over the 2 s pre-roll at 0.1 s steps and the 120 s run (+-2 per
-    # buoy).
+    # buoy). GPS_RAW_INT goes at the rate asked, as ArduPilot sends it: a fix again until the next one, each copy
+    # stamped with its fix's time, and read once.
     asked = {"GPS_RAW_INT": 10.0, "ATTITUDE": 20.0, "SCALED_IMU": 25.0}
     sensors = {"GPS_RAW_INT": GpsSpec(), "ATTITUDE": CompassSpec(), "SCALED_IMU": ImuSpec()}
+    read = dict(
+        counters, vessel_decoded_GPS_RAW_INT=counters["vessel_decoded_GPS_RAW_INT"] - counters["vessel_repeated_fix"]
+    )
     for name, spec in sensors.items():
         rate = min(spec.rate_hz, asked[name])
         expected = 45 * (2.0 * min(rate, 10.0) + 120.0 * min(rate, 1.0 / dt_s))
-        got = counters[f"vessel_decoded_{name}"]
+        got = read[f"vessel_decoded_{name}"]
         assert abs(got - expected) <= 45 * 2, (name, got, expected)
+    # The 5 Hz GPS at 10 Hz in the pre-roll: every fix twice; at 0.5 s steps a new fix at (nearly) every step.
+    repeats = 45 * 2.0 * (asked["GPS_RAW_INT"] - GpsSpec().rate_hz)
+    assert abs(counters["vessel_repeated_fix"] - repeats) <= 45 * 2, counters["vessel_repeated_fix"]
     assert abs(counters["vessel_decoded_HEARTBEAT"] - 45 * 122) <= 45 * 2
     assert counters["vessel_bad_crc"] == counters["vessel_malformed"] == 0
     assert two_links["direct"].metrics.get("vehicle_link") == {}

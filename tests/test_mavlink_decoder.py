@@ -44,8 +44,9 @@ def assert_consistent(d: TelemetryDecoder) -> None:
     assert c.bytes_fed == c.frame_bytes + c.skipped_bytes + c.pending_bytes
 
 
-def gps(mav, fix_type=3, lat=473977420, lon=85455940, vel=250, cog=9000):
-    return pack(mav, mav.gps_raw_int_encode(123, fix_type, lat, lon, 500, 100, 100, vel, cog, 9))
+def gps(mav, fix_type=3, lat=473977420, lon=85455940, vel=250, cog=9000, time_usec=0):
+    """A GPS_RAW_INT; time_usec 0 (a GPS without time) is never taken for a repeat."""
+    return pack(mav, mav.gps_raw_int_encode(time_usec, fix_type, lat, lon, 500, 100, 100, vel, cog, 9))
 
 
 def attitude(mav, yaw):
@@ -66,6 +67,28 @@ def test_gps_raw_int_lat_lon_exact_and_velocity_from_course():
     np.testing.assert_allclose(fix.velocity_mps, [[0.0, -1.0]], atol=1e-12)
     (fix,) = d.feed(gps(m, vel=65535, cog=65535))
     assert fix.velocity_mps is None
+
+
+def test_a_fix_sent_again_with_its_own_time_is_read_once(mav):
+    """ArduPilot sends GPS_RAW_INT at the rate asked, stamped with its fix's time: Rover SITL, asked 10 Hz of its
+    5 Hz GPS, sent every fix twice (AP_GPS::send_mavlink_gps_raw), and repeats a silent GPS's last fix for 4 s.
+    A copy read again would be fused as a newer measurement of an old position."""
+    d = decoder()
+    stream = [
+        gps(mav, time_usec=1_000_000),
+        gps(mav, time_usec=1_000_000),  # the same fix again
+        gps(mav, fix_type=1, time_usec=1_000_000),  # no fix: not a reading, and not a repeat
+        gps(mav, lat=473977500, time_usec=1_200_000),  # the next fix
+        gps(mav, lat=473977500, time_usec=1_200_000),
+        gps(mav, lat=473977500, time_usec=1_200_000),
+        gps(mav, time_usec=0),  # a GPS without time: every copy is read
+        gps(mav, time_usec=0),
+        gps(mav, time_usec=1_000_000),  # an older time than the last, but not the last one: read
+    ]
+    fixes = [r for frame in stream for r in d.feed(frame)]
+    assert [f.lat_deg[0] for f in fixes] == [47.397742, 47.39775, 47.397742, 47.397742, 47.397742]
+    assert d.counters.repeated_fix == 3 and d.counters.no_fix == 1 and d.counters.decoded == 9
+    assert_consistent(d)
 
 
 def test_gps_without_fix_gives_nothing(mav):

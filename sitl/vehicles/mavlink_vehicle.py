@@ -85,6 +85,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
     checks. mode: INITIAL_MODE when given. streams: "ardupilot" or "sensor-rate" (module docstring).
     rc_receiver: False for a vehicle with no RC receiver: radio failsafe (and HOLD) until overrides arrive.
     params: parameter values to start with (name -> value), e.g. {"PILOT_STEER_TYPE": 3}.
+    boot_s: when it booted on the times it is given, s: its messages carry the time since (0 before).
     """
 
     def __init__(
@@ -100,6 +101,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         streams: str = "ardupilot",
         rc_receiver: bool = True,
         params: dict[str, float] | None = None,
+        boot_s: float = 0.0,
     ) -> None:
         if kind not in KINDS:
             raise ValueError(f"unknown vehicle kind {kind!r}; choose one of {', '.join(KINDS)}")
@@ -108,7 +110,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         if streams not in STREAM_MODES:
             raise ValueError(f"streams must be one of {STREAM_MODES}, got {streams!r}")
         self.system_id, self.kind, self.max_actuator, self.streams = system_id, kind, float(max_actuator), streams
-        self.telemetry = TelemetryEncoder(system_id)
+        self.telemetry = TelemetryEncoder(system_id, boot_s=boot_s)
         self.reader = TelemetryDecoder(clock=lambda: 0.0, agent=0)
         self.counters = VehicleCounters()
         overrides = dict(params or {})

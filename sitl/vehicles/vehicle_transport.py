@@ -63,8 +63,9 @@ class MavlinkTransport:
 
     max_actuator: full-scale thrust (N) or wheel speed (m/s) that full RC deflection stands for. metres_per_tick:
     wheel travel per encoder tick (eBots report wheel travel in metres, as ArduPilot does). clock: the
-    simulated time (s) the vessels stamp readings with. streams, vehicle_params: as `SimulatedVehicle`'s
-    streams and params. With ArduPilot's stream defaults (1 Hz) each vessel asks its vehicle for its messages
+    simulated time (s) the vessels stamp readings with; the vehicles boot at its time at construction (a lockstep
+    run's pre-roll starts below zero), so their messages carry positive times since boot. streams,
+    vehicle_params: as `SimulatedVehicle`'s streams and params. With ArduPilot's stream defaults (1 Hz) each vessel asks its vehicle for its messages
     at the start, with the requests `bob-autonomy` sends (`bob_autonomy.onboard.autopilot.AutopilotSession`).
     """
 
@@ -83,6 +84,7 @@ class MavlinkTransport:
     ) -> None:
         self.metres_per_tick = metres_per_tick
         self.kind = kind
+        boot_s = float(clock())
         self.vehicles = [
             SimulatedVehicle(
                 first_system_id + k,
@@ -92,6 +94,7 @@ class MavlinkTransport:
                 armed=True,
                 streams=streams,
                 params=vehicle_params,
+                boot_s=boot_s,
             )
             for k in range(n)
         ]
@@ -163,7 +166,7 @@ class MavlinkTransport:
                 totals[f"vehicle_{name}"] += value
         for link in self.links:
             c = link.decoder.counters
-            for name in ("decoded", "bad_crc", "malformed", "unknown", "skipped_bytes"):
+            for name in ("decoded", "bad_crc", "malformed", "unknown", "skipped_bytes", "no_fix", "repeated_fix"):
                 totals[f"vessel_{name}"] += getattr(c, name)
             for name, count in c.by_type.items():
                 totals[f"vessel_decoded_{name}"] += count

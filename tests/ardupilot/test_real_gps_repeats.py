@@ -1,0 +1,50 @@
+"""ArduPilot sends GPS_RAW_INT at the rate asked, each copy stamped with the time of its fix: the vessel's decoder
+reads each fix once.
+
+Rover SITL's GPS runs at 5 Hz (SIM_GPS1_HZ); the vessel asks for GPS_RAW_INT at 10 Hz. ArduPilot then sends every
+fix twice with the same time_usec (libraries/AP_GPS/AP_GPS.cpp send_mavlink_gps_raw: last_fix_time_ms). Before
+the decoder knew this, each copy became a fix stamped with its own arrival time, and the estimator fused every
+position twice, the second time 0.1 s late. Our simulated autopilot sent only new fixes, so no test saw it.
+
+Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl
+
+from firmware_bridge.autopilot_requests import set_message_interval
+from firmware_bridge.commands import Encoder
+from firmware_bridge.decoder import TelemetryDecoder
+from firmware_bridge.readings import GpsFix
+
+pytestmark = NEEDS_SITL
+
+
+def test_the_decoder_reads_each_of_ardupilots_fixes_once(tmp_path) -> None:
+    with RoverSitl(BINARY, "omni", tmp_path) as sitl:
+        sitl.wait_initialised()
+        with socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0) as link:
+            link.sendall(set_message_interval(Encoder(), 1, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 10.0))
+            decoder = TelemetryDecoder(source_system=1, source_component=1, fused_position=False)  # as a vessel
+            raw = []  # every GPS_RAW_INT with a fix, as pymavlink reads it
+            decoder.message_hook = lambda msg: raw.append(msg) if msg.get_type() == "GPS_RAW_INT" else None
+            deadline = time.monotonic() + 60.0
+            while not any(isinstance(r, GpsFix) for r in decoder.feed(link.recv(65536))):  # the GPS's first fix
+                assert time.monotonic() < deadline, "ArduPilot's GPS never had a fix"
+            raw.clear()
+            read_before = decoder.last_fix_usec  # its second copy may come in the window: not read again
+            repeats_before = decoder.counters.repeated_fix
+            fixes, end = 0, time.monotonic() + 10.0
+            while time.monotonic() < end:
+                fixes += sum(isinstance(r, GpsFix) for r in decoder.feed(link.recv(65536)))
+    with_fix = [msg for msg in raw if msg.fix_type >= 2]
+    stamps = {msg.time_usec for msg in with_fix}
+    assert 90 <= len(with_fix) <= 110, len(with_fix)  # 10 Hz for 10 s
+    assert 45 <= len(stamps) <= 55, len(stamps)  # a 5 Hz GPS: every fix sent twice
+    assert fixes == len(stamps - {read_before})
+    assert decoder.counters.repeated_fix - repeats_before == len(with_fix) - fixes
