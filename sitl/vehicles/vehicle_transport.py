@@ -65,8 +65,9 @@ class MavlinkTransport:
     wheel travel per encoder tick (eBots report wheel travel in metres, as ArduPilot does). clock: the
     simulated time (s) the vessels stamp readings with; the vehicles boot at its time at construction (a lockstep
     run's pre-roll starts below zero), so their messages carry positive times since boot. streams,
-    vehicle_params: as `SimulatedVehicle`'s streams and params. With ArduPilot's stream defaults (1 Hz) each vessel asks its vehicle for its messages
-    at the start, with the requests `bob-autonomy` sends (`bob_autonomy.onboard.autopilot.AutopilotSession`).
+    vehicle_params: as `SimulatedVehicle`'s streams and params. With ArduPilot's stream defaults (1 Hz) each
+    vessel asks its vehicle for its messages at the start, with the requests `bob-autonomy` sends
+    (`bob_autonomy.onboard.autopilot.AutopilotSession`).
     """
 
     def __init__(
