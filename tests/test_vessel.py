@@ -108,6 +108,8 @@ def test_vessel_arms_its_vehicle_and_drives_it_to_the_goal(stand_in: StandInVehi
     np.testing.assert_allclose(stand_in.vehicle.actuator(stand_in.vehicle._last_command_s), [0.0, 0.0], atol=1e-9)
     summary = stats.summary()
     assert summary["compute_latency_s_median"] < summary["compute_latency_s_p99"] + 1e-12
+    # the vehicle link's decoder counters, those not zero: every frame decoded, none bad
+    assert summary["vehicle_link_decoded"] > 100 and "vehicle_link_bad_crc" not in summary
 
 
 def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(stand_in: StandInVehicle) -> None:

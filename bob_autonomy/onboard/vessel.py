@@ -197,10 +197,13 @@ class VesselStats:
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
     gcs: dict[str, int] = field(default_factory=dict)  # the GCS component's rejected-input counters, at the end
+    # The vehicle link's decoder counters at the end (bad_crc, malformed, no_fix, repeated_fix, ...; those not 0).
+    vehicle_link: dict[str, int] = field(default_factory=dict)
 
     def summary(self) -> dict[str, float]:
         out: dict[str, float] = {k: v for k, v in vars(self).items() if isinstance(v, int)}
         out.update({f"gcs_{name}": value for name, value in self.gcs.items()})
+        out.update({f"vehicle_link_{name}": value for name, value in self.vehicle_link.items()})
         for name in ("compute_latency_s", "telemetry_to_command_s"):
             values = sorted(getattr(self, name))
             if values:
@@ -551,6 +554,8 @@ class Vessel(VesselLinks, AutopilotDriving):
         if self.tlog is not None:
             self.tlog.close()
         self.stats.gcs = self.gcs.log_counters()
+        counters = vars(self.vehicle.decoder.counters).items()
+        self.stats.vehicle_link = {k: v for k, v in counters if isinstance(v, int) and not isinstance(v, bool) and v}
         self.stats.mpc_fallbacks = sum(getattr(m, "fallbacks", 0) for m in getattr(self.pipeline, "mpcs", ()))
         layer = collision_layer(self.agent.behavior) if hasattr(self, "agent") else None
         if layer is not None:
