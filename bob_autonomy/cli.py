@@ -46,6 +46,7 @@ from bob_autonomy.core.safe_read import (
 )
 from bob_autonomy.onboard.autopilot_start import StartOptions
 from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
+from firmware_bridge.decoder import MAX_GPS_LAG_S
 
 
 def _describe_behaviors() -> str:
@@ -144,6 +145,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--top-speed", type=float, help="the vessel's speed at full throttle, m/s (default: from the autopilot)"
+    )
+    run.add_argument(
+        "--gps-lag",
+        type=float,
+        help="GPS lag from measurement to the autopilot reading the fix, s (0-1; default: the autopilot's "
+        "GPS1_DELAY_MS, else 0): fixes are fused that much before the autopilot's time stamp",
     )
     run.add_argument("--duration", type=float, help="stop after this many clock seconds")
     run.add_argument("--log-file", help="log here (rotated at 5 MB, 3 kept) instead of stderr")
@@ -271,6 +278,8 @@ def _check_numbers(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
             raise ValueError(f"{option} {value}: must be greater than 0")
     if args.duration is not None and args.duration < 0:
         raise ValueError(f"--duration {args.duration}: must not be negative")
+    if args.gps_lag is not None and not 0 <= args.gps_lag <= MAX_GPS_LAG_S:
+        raise ValueError(f"--gps-lag {args.gps_lag}: must be within 0..{MAX_GPS_LAG_S:g} s")
     if args.max_thrust_fraction > 1:
         raise ValueError(f"--max-thrust-fraction {args.max_thrust_fraction}: must be at most 1")
 
@@ -346,6 +355,7 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         on_stop=args.on_stop,
         recover_after_reboot=args.recover_after_reboot,
         top_speed_mps=args.top_speed,
+        gps_lag_s=args.gps_lag,
     )
 
 

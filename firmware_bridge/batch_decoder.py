@@ -29,6 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.decoder import (
     _CONVERTERS,
+    SENT_TIME_FIELDS,
     STANDARD_GRAVITY_MPS2,
     UINT16_MAX,
     TelemetryDecoder,
@@ -201,6 +202,8 @@ def _decode_columnar(
                 slots[i] = None
             else:
                 by_type.setdefault(msg_id, []).append(i)
+    records_of: dict[int, np.ndarray] = {}
+    boot_times: dict[int, list[float]] = {}  # per decoder, its messages' times of sending (`feed`'s clock samples)
     for msg_id, members in by_type.items():
         dtype = _DTYPES[msg_id]
         size = dtype.itemsize
@@ -208,7 +211,15 @@ def _decode_columnar(
         for i in members:
             k, start, length, _, _, _ = believed[i]
             payloads.append(chunks[k][start + V2_HEADER_LEN : start + length - _CRC_LEN][:size].ljust(size, b"\0"))
-        records = np.frombuffer(b"".join(payloads), dtype=dtype)
+        records = records_of[msg_id] = np.frombuffer(b"".join(payloads), dtype=dtype)
+        if msg_id in SENT_TIME_FIELDS:
+            field_name, unit = SENT_TIME_FIELDS[msg_id]
+            for i, boot_s in zip(members, (records[field_name] * unit).tolist(), strict=True):
+                boot_times.setdefault(believed[i][0], []).append(boot_s)
+    for k, boot_s in boot_times.items():
+        decoders[k].note_boot_times(boot_s, times[k])
+    for msg_id, members in by_type.items():
+        records = records_of[msg_id]
         owners = [believed[i][0] for i in members]
         agents = np.array([decoders[k].agent for k in owners], dtype=np.intp)
         t_s = np.array([times[k] for k in owners], dtype=np.float64)
@@ -227,14 +238,18 @@ def _place(rows: list[object], where: np.ndarray, placed: list[Row]) -> None:
 def _gps_raw_int(records, agents, t_s, decoders, columns: Columns) -> list[object]:
     """TelemetryDecoder._gps_raw_int, per row: lat, lon deg; velocity (east, north) m/s from speed and course
     (the trigonometry in Python's math, as the decoder does it, for the same last bit); a repeated fix (its
-    time_usec again, `TelemetryDecoder.fresh_fix`) is not read, each decoder's rows taken in stream order."""
+    time_usec again, `TelemetryDecoder.fresh_fix`) is not read, each decoder's rows taken in stream order; a
+    fix's time is when it was taken (`TelemetryDecoder.fix_time`)."""
     rows: list[object] = [None] * len(records)
     read = records["fix_type"] >= 2  # a fix, and not one already read
+    t_s = t_s.copy()
     for j, (fix, stamp) in enumerate(zip(read.tolist(), records["time_usec"].tolist(), strict=True)):
         if not fix:
             decoders[j].counters.no_fix += 1
         elif not decoders[j].fresh_fix(stamp):
             read[j] = False
+        else:
+            t_s[j] = decoders[j].fix_time(stamp, float(t_s[j]))  # when it was taken
     moving = read & (records["vel"] != UINT16_MAX) & (records["cog"] != UINT16_MAX)
     lat, lon = records["lat"] / 1e7, records["lon"] / 1e7
     if moving.any():

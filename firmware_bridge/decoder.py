@@ -14,8 +14,11 @@ ardupilotmega MAVLink 2 dialect; MAVLink 1 frames are accepted too).
 
 Timestamps: every reading's `t_s` is the decoder's clock (default
 `time.monotonic`) read once per `feed` call, i.e. the local time of reception
-of the chunk. The vehicle's own boot-relative times (time_boot_ms, time_usec)
-are not used: they are on another clock. Frames and sign conventions: see
+of the chunk, except a GPS fix's: ArduPilot stamps GPS_RAW_INT with the time
+its GPS driver read the fix and repeats it at the rate asked, so the fix is
+placed on the local clock through the autopilot's clock since boot
+(`firmware_bridge.autopilot_clock`, learnt from the time_boot_ms of ATTITUDE
+and the IMU messages), less `gps_lag_s`. Frames and sign conventions: see
 docs/mavlink-mapping.md.
 """
 
@@ -30,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from firmware_bridge.autopilot_clock import AutopilotClock
 from firmware_bridge.frames import FrameHeader, decode_unsigned, frame_checksum, layout
 from firmware_bridge.readings import (
     CompassReading,
@@ -43,6 +47,22 @@ from firmware_bridge.readings import (
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 UINT16_MAX = 65535
+MAX_GPS_LAG_S = 1.0  # a GPS lag above this is a setting's mistake (ArduPilot's defaults are 0.08-0.22 s)
+
+# The messages a decoder reads that carry the autopilot's time of sending: (field, s per unit).
+SENT_TIME_FIELDS: dict[int, tuple[str, float]] = {
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: ("time_boot_ms", 1e-3),
+    mavlink.MAVLINK_MSG_ID_SCALED_IMU: ("time_boot_ms", 1e-3),
+    mavlink.MAVLINK_MSG_ID_RAW_IMU: ("time_usec", 1e-6),
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: ("time_boot_ms", 1e-3),
+}
+
+
+def _boot_time_s(msg) -> float:
+    """The autopilot's time since boot (s) at which msg (one of SENT_TIME_FIELDS) was sent."""
+    field_name, unit = SENT_TIME_FIELDS[msg.get_msgId()]
+    return float(getattr(msg, field_name)) * unit
+
 
 _V1 = mavlink.PROTOCOL_MARKER_V1
 _V2 = mavlink.PROTOCOL_MARKER_V2
@@ -235,8 +255,13 @@ class TelemetryDecoder:
         source_component: int | None = None,
         learn_source: bool = False,
         fused_position: bool = True,
+        gps_lag_s: float = 0.0,
     ) -> None:
+        if not (math.isfinite(gps_lag_s) and 0.0 <= gps_lag_s <= MAX_GPS_LAG_S):
+            raise ValueError(f"gps_lag_s must be within 0..{MAX_GPS_LAG_S} s; got {gps_lag_s!r}")
         self.clock = clock
+        self.gps_lag_s = float(gps_lag_s)
+        self.autopilot_clock = AutopilotClock()  # where the autopilot's time since boot falls on `clock`
         self.fused_position = fused_position
         self.agent = agent
         self.source_system = source_system
@@ -248,6 +273,7 @@ class TelemetryDecoder:
         self._agents = np.array([agent], dtype=np.intp)
         self.message_hook: Callable[[object], None] | None = None  # sees every decoded message (e.g. a tlog)
         self._unread = _unread_ids(fused_position)  # checked and counted by `feed`, not decoded
+        self._clock_ids = frozenset(SENT_TIME_FIELDS) - self._unread  # the messages read that sample the clock
         self.last_fix_usec = 0  # time_usec of the last GPS_RAW_INT fix read (0: none, or a GPS without time)
 
     # -- framing ---------------------------------------------------------------------------------------
@@ -255,12 +281,13 @@ class TelemetryDecoder:
     def feed(self, data: bytes) -> list[Reading]:
         """Add received bytes; return the readings of the messages they complete, in stream order."""
         readings: list[Reading] = []
-        t_s: float | None = None
-        for msg in self.feed_messages(data, self._unread if self.message_hook is None else frozenset()):
-            if not self._from_source(msg):
-                continue
-            if t_s is None:
-                t_s = float(self.clock())
+        unread = self._unread if self.message_hook is None else frozenset()
+        believed = [msg for msg in self.feed_messages(data, unread) if self._from_source(msg)]
+        if not believed:
+            return readings
+        t_s = float(self.clock())
+        self.note_boot_times([_boot_time_s(msg) for msg in believed if msg.get_msgId() in self._clock_ids], t_s)
+        for msg in believed:
             try:
                 reading = self._convert(msg, t_s)
             except (TypeError, ValueError, OverflowError, AttributeError, IndexError):
@@ -366,6 +393,17 @@ class TelemetryDecoder:
             return None
         return convert(self, msg, t_s)
 
+    def note_boot_times(self, boot_s: list[float], t_s: float) -> None:
+        """The autopilot's times since boot (s) of one chunk's messages that carry the time they were sent, all
+        arrived at t_s: the newest is a sample of the autopilot's clock (`AutopilotClock.observe`)."""
+        if boot_s:
+            self.autopilot_clock.observe(max(boot_s), t_s)
+
+    def fix_time(self, time_usec: int, t_s: float) -> float:
+        """When a GPS fix stamped time_usec (us since the autopilot's boot) that arrived at t_s was taken, on the
+        decoder's clock (s): its stamp placed by the autopilot's clock, less `gps_lag_s`."""
+        return self.autopilot_clock.fix_time(time_usec, t_s) - self.gps_lag_s
+
     def _rows(self, t_s: float) -> tuple[IntArray, FloatArray]:
         return self._agents.copy(), np.array([t_s])
 
@@ -380,7 +418,7 @@ class TelemetryDecoder:
             speed = msg.vel / 100.0
             course = math.radians(msg.cog / 100.0)  # from north, clockwise
             velocity = np.array([[speed * math.sin(course), speed * math.cos(course)]])
-        agents, times = self._rows(t_s)
+        agents, times = self._rows(self.fix_time(int(msg.time_usec), t_s))
         return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
 
     def fresh_fix(self, time_usec: int) -> bool:

@@ -13,6 +13,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from bob_autonomy.onboard.vehicle_link import VehicleLink, receive_all
 from firmware_bridge.batch_decoder import Row, decode_batch
 from firmware_bridge.decoder import TelemetryDecoder, heading_from_yaw
+from firmware_bridge.readings import GpsFix
 from firmware_bridge.telemetry import TelemetryEncoder
 from sitl.vehicles.reading_batches import merge_by_round
 
@@ -67,9 +68,10 @@ def _fleet(rng: np.random.Generator, n: int) -> tuple[list[TelemetryDecoder], li
     chunks = []
     for k in range(n):
         fused = bool(rng.integers(2))
+        lag = float(rng.choice([0.0, 0.12]))  # fixes placed by the autopilot's clock, less this lag
         for decoders in sets:
             decoders.append(TelemetryDecoder(lambda: 12.5, agent=3 * k, source_system=k + 1, source_component=1,
-                                             fused_position=fused))  # fmt: skip
+                                             fused_position=fused, gps_lag_s=lag))  # fmt: skip
         system = k + 1 if rng.random() < 0.8 else k + 2
         component = 1 if rng.random() < 0.9 else 191
         empty = rng.random() < 0.1
@@ -121,14 +123,18 @@ def test_batch_decoding_gives_feeds_counters_and_readings_bit_for_bit(seed: int)
 def test_every_column_wise_kind_is_exercised() -> None:
     """The random telemetry above reaches every column-wise path, and its special cases, at least once."""
     rng = np.random.default_rng(0)
-    kinds, no_fix, repeated = set(), 0, 0
+    kinds, no_fix, repeated, placed = set(), 0, 0, 0
     for _ in SEEDS:
         _, batched, chunks = _fleet(rng, 9)
-        got, _ = decode_batch(batched, chunks)
+        got, columns = decode_batch(batched, chunks)
         kinds |= {r.key for rows in got for r in rows if isinstance(r, Row)}
         no_fix += sum(d.counters.no_fix for d in batched)
         repeated += sum(d.counters.repeated_fix for d in batched)
-    assert no_fix > 0 and repeated > 0
+        fixes = [
+            columns.take(r.key, [r.index]) for rows in got for r in rows if isinstance(r, Row) and r.key[0] is GpsFix
+        ]
+        placed += sum(float(f.t_s[0]) != 12.5 for f in fixes)  # a fix dated before its arrival
+    assert no_fix > 0 and repeated > 0 and placed > 0
     names = {(kind.__name__, present[-1]) for kind, present in kinds}
     assert names == {("GpsFix", True), ("GpsFix", False), ("CompassReading", True), ("ImuReading", True)}
 

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -125,6 +126,20 @@ def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(st
     half = [round(0.5 * (profile.rc_map.range_of(ch).max_us - 1500)) + 1 for ch in (3, 4)]  # us from trim, 1 of slack
     sent = [channels for _t, channels in vessel.autopilot.sent]
     assert sent and all(abs(c[3] - 1500) <= half[0] and abs(c[4] - 1500) <= half[1] for c in sent)
+
+
+def test_the_gps_lag_the_autopilot_compensates_is_the_one_the_vessel_dates_fixes_with(stand_in: StandInVehicle) -> None:
+    """GPS1_DELAY_MS 120: the autopilot's EKF takes its fixes as measured 120 ms before it read them. The vessel
+    reads it at start and dates its fixes so too (a `gps_lag_s` setting of its own wins), and still drives."""
+    assert stand_in.vehicle.params.set("GPS1_DELAY_MS", 120)
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    stats = vessel.run(duration_s=10.0)
+    assert vessel.vehicle.decoder.gps_lag_s == pytest.approx(0.12)
+    assert stats.commands > 20 and stand_in.position[0] > 1.0, f"moved east towards the goal: {stand_in.position}"
+    vessel.config = replace(vessel.config, gps_lag_s=0.05)  # as `--gps-lag 0.05` would have set it
+    vessel.vehicle.decoder.gps_lag_s = 0.05
+    vessel._place_fixes(vessel.autopilot.profile.gps_lag_s)
+    assert vessel.vehicle.decoder.gps_lag_s == 0.05
 
 
 def test_an_autopilot_that_hears_nothing_we_send_stops_the_start_up_saying_so(stand_in: StandInVehicle) -> None:

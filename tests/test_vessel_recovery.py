@@ -380,3 +380,15 @@ def test_a_recovery_setting_that_is_not_a_boolean_is_refused_naming_it(tmp_path)
     path.write_text('vehicle = "tcp:127.0.0.1:5760"\nsystem_id = 1\norigin = "1.0,2.0"\nrecover_after_reboot = "no"\n')
     with pytest.raises(ValueError, match="setting 'recover_after_reboot' must be true or false, got 'no'"):
         _apply_config_file(_parser(), ["run", "--config", str(path)])
+
+
+def test_the_gps_lag_is_a_setting_of_the_vessel_config_file_within_0_to_1_s(tmp_path) -> None:
+    path = tmp_path / "vessel.toml"
+    base = 'vehicle = "tcp:127.0.0.1:5760"\nsystem_id = 1\norigin = "1.0,2.0"\nbehavior = "bob-rule"\n'
+    path.write_text(base + "gps_lag = 0.12\n")
+    assert config_from_args(_apply_config_file(_parser(), ["run", "--config", str(path)])).gps_lag_s == 0.12
+    path.write_text(base)
+    assert config_from_args(_apply_config_file(_parser(), ["run", "--config", str(path)])).gps_lag_s is None
+    for bad in ("-0.1", "2"):
+        with pytest.raises(ValueError, match=rf"--gps-lag {float(bad)}: must be within 0..1 s"):
+            _apply_config_file(_parser(), ["run", "--config", str(path), "--gps-lag", bad])

@@ -44,6 +44,7 @@ from firmware_bridge.autopilot_requests import (
     set_message_interval,
 )
 from firmware_bridge.commands import ROVER_MODES, Encoder, rc_override
+from firmware_bridge.decoder import MAX_GPS_LAG_S
 from firmware_bridge.rc_channels import DEFAULT_DEAD_ZONE_US, RcChannelRange, RcMap, ResolutionCarry, before_expo
 
 BUOY, EBOT, MOTORBOAT = "buoy", "ebot", "motorboat"
@@ -76,6 +77,8 @@ CORE_PARAMS = (
     "MANUAL_STR_EXPO",
     "MOT_THR_MAX",
     "MOT_SLEWRATE",
+    "GPS1_DELAY_MS",
+    "GPS_DELAY_MS",  # GPS1_DELAY_MS before ArduPilot 4.6
     *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
 DEFAULT_THROTTLE_SLEW_PER_S = 1.0  # MOT_SLEWRATE's default, 100 %/s (libraries/AR_Motors/AP_MotorsUGV.cpp)
@@ -246,6 +249,17 @@ class AutopilotProfile:
         if value is None or not math.isfinite(value):
             return DEFAULT_THROTTLE_SLEW_PER_S
         return max(float(int(value)), 0.0) / 100.0
+
+    @property
+    def gps_lag_s(self) -> float | None:
+        """GPS1_DELAY_MS (GPS_DELAY_MS before ArduPilot 4.6) in s: the lag from a GPS measurement to the autopilot
+        reading it, which its EKF compensates (libraries/AP_GPS/AP_GPS.cpp get_lag). None when not read or 0 (the
+        autopilot then uses its detected GPS type's default, 0.08-0.22 s, which it does not report)."""
+        for name in ("GPS1_DELAY_MS", "GPS_DELAY_MS"):
+            value = self.values.get(name)
+            if value is not None and math.isfinite(value) and value > 0:
+                return min(float(value), 1000.0 * MAX_GPS_LAG_S) / 1000.0
+        return None
 
     @property
     def turn_radius_m(self) -> float | None:

@@ -28,7 +28,8 @@ class VehicleLink:
 
     kind: "buoy" (commands are body-frame thrust, N) or "ebot" (wheel speeds, m/s). max_actuator: the
     actuator's full scale (N or m/s), which RC 1900 us stands for. agent: the row its readings carry.
-    clock: seconds, stamps readings at reception. heartbeat_timeout_s: silence after which `silent()` is true.
+    clock: seconds, stamps readings at reception (a GPS fix when it was taken: `TelemetryDecoder.fix_time`, less
+    gps_lag_s). heartbeat_timeout_s: silence after which `silent()` is true.
 
     Only the vehicle's autopilot is believed: telemetry, heartbeats and acknowledgements from any other
     system id or from a component other than 1 (MAV_COMP_ID_AUTOPILOT1) are dropped and counted
@@ -45,13 +46,19 @@ class VehicleLink:
         agent: int = 0,
         heartbeat_timeout_s: float = 3.0,
         encoder: Encoder | None = None,
+        gps_lag_s: float = 0.0,
     ) -> None:
         if kind not in (BUOY, EBOT):
             raise ValueError(f"unknown vehicle kind {kind!r}; choose buoy or ebot")
         self.target_system, self.kind, self.max_actuator = target_system, kind, float(max_actuator)
         # Raw GPS only: the autopilot's fused GLOBAL_POSITION_INT would be a second, correlated fix.
         self.decoder = TelemetryDecoder(
-            clock, agent=agent, source_system=target_system, source_component=AUTOPILOT_COMPONENT, fused_position=False
+            clock,
+            agent=agent,
+            source_system=target_system,
+            source_component=AUTOPILOT_COMPONENT,
+            fused_position=False,
+            gps_lag_s=gps_lag_s,
         )
         self.watch = HeartbeatWatch(heartbeat_timeout_s, clock, system=target_system)
         self.encoder = encoder if encoder is not None else Encoder()

@@ -113,6 +113,9 @@ class VesselConfig:
     # arm it again (True), or hold at neutral until someone arms it (False).
     recover_after_reboot: bool = True
     top_speed_mps: float | None = None
+    # The lag from a GPS measurement to the autopilot reading it, s: fixes are fused that much before the time the
+    # autopilot stamps them. None: the autopilot's GPS1_DELAY_MS when set, else 0.
+    gps_lag_s: float | None = None
 
     @property
     def agent_id(self) -> int:
@@ -250,7 +253,12 @@ class Vessel(VesselLinks, AutopilotDriving):
         self.vehicle_link: Link = open_link(c.vehicle, c.baud)
         telemetry_kind = BUOY if c.kind == MOTORBOAT else c.kind  # a motorboat's telemetry is a buoy's
         self.vehicle = VehicleLink(
-            c.system_id, telemetry_kind, self.max_actuator, self.clock.now, heartbeat_timeout_s=c.heartbeat_timeout_s
+            c.system_id,
+            telemetry_kind,
+            self.max_actuator,
+            self.clock.now,
+            heartbeat_timeout_s=c.heartbeat_timeout_s,
+            gps_lag_s=c.gps_lag_s or 0.0,
         )
         self.autopilot = AutopilotSession(
             c.system_id, c.kind, self.vehicle.encoder, self.clock.now, estimator=c.estimator
@@ -323,6 +331,17 @@ class Vessel(VesselLinks, AutopilotDriving):
 
     # -- start -----------------------------------------------------------------------------------------
 
+    def _place_fixes(self, autopilot_lag_s: float | None) -> None:
+        """Say how GPS fixes are timed: ArduPilot's stamp (the time it read the fix) on our clock, less the GPS's
+        lag, which is the setting's, or else the autopilot's GPS1_DELAY_MS (autopilot_lag_s, s), or else 0."""
+        decoder = self.vehicle.decoder
+        if self.config.gps_lag_s is None and autopilot_lag_s is not None:
+            decoder.gps_lag_s = autopilot_lag_s
+            source = "the autopilot's GPS1_DELAY_MS"
+        else:
+            source = "gps_lag_s" if self.config.gps_lag_s is not None else "GPS1_DELAY_MS not set: set it or gps_lag_s"
+        logger.info("GPS fixes fused at the autopilot's fix time less a lag of %.3f s (%s)", decoder.gps_lag_s, source)
+
     def arm(self) -> None:
         """Bring the autopilot into service (`bob_autonomy.onboard.autopilot_start`): streams, parameters, mode, ready,
         armed. Raises VehicleError saying what is wrong and what to change."""
@@ -339,6 +358,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             raise VehicleError(f"vehicle {c.system_id} on {c.vehicle!r}: {error}") from None
         if profile is None:
             return
+        self._place_fixes(profile.gps_lag_s)
         speed = profile.top_speed_mps
         on_ground = profile.known and profile.frame_class != 2  # FRAME_CLASS 2: a boat
         capped = c.kind in (BUOY, MOTORBOAT) and profile.throttle_ceiling < c.max_thrust_fraction

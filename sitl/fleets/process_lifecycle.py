@@ -62,12 +62,17 @@ class ProcessLifecycle:
             boat = next(boats) if kind == "motorboat" else None
             mine = {"SPEED_MAX": boat.top_speed_mps, "TURN_RADIUS": min(boat.turning_radius_m, 10.0)} if boat else None
             own.append(mine)
+        # Every autopilot is set up with the simulated GPS's lag, as an operator sets GPS1_DELAY_MS (0..250 ms) for
+        # the receiver fitted: the vessels read it and date their fixes by it.
+        gps = s.sensors.specs().get("gps")
+        lag = None if gps is None else {"GPS1_DELAY_MS": min(250, round(1000 * gps.latency_s))}
         self.tlog = TlogWriter(self.out / "vehicles.tlog")
         try:
             self.server = VehicleServer(
                 kinds,
                 limits,
                 own_params=own,
+                vehicle_params=lag,
                 host=o.host,
                 base_port=o.base_port,
                 metres_per_tick=self.bodies.metres_per_tick,

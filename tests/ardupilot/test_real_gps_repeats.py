@@ -14,6 +14,7 @@ from __future__ import annotations
 import socket
 import time
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sitl_harness import BINARY, NEEDS_SITL, RoverSitl
 
@@ -48,3 +49,30 @@ def test_the_decoder_reads_each_of_ardupilots_fixes_once(tmp_path) -> None:
     assert 45 <= len(stamps) <= 55, len(stamps)  # a 5 Hz GPS: every fix sent twice
     assert fixes == len(stamps - {read_before})
     assert decoder.counters.repeated_fix - repeats_before == len(with_fix) - fixes
+
+
+def test_the_decoder_dates_each_of_ardupilots_fixes_by_the_time_ardupilot_read_it(tmp_path) -> None:
+    """A fix goes out at a GPS_RAW_INT slot after ArduPilot read it, and arrival stamps are late by that wait.
+    Placed by ArduPilot's clock (learnt from ATTITUDE's time_boot_ms), the fixes keep ArduPilot's own times to a
+    few ms, and none is dated after its arrival."""
+    with RoverSitl(BINARY, "omni", tmp_path) as sitl:
+        sitl.wait_initialised()
+        with socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0) as link:
+            for message in (mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, mavlink.MAVLINK_MSG_ID_ATTITUDE):
+                link.sendall(set_message_interval(Encoder(), 1, message, 10.0))
+            decoder = TelemetryDecoder(source_system=1, source_component=1, fused_position=False)  # as a vessel
+            stamps = []  # (fix time placed, arrival, ArduPilot's time_usec) of each fix read
+            deadline = time.monotonic() + 60.0
+            while time.monotonic() < deadline and len(stamps) < 60:  # 12 s of a 5 Hz GPS
+                readings = decoder.feed(link.recv(65536))
+                arrival = time.monotonic()  # just after the decoder's own reading of the clock
+                for reading in readings:
+                    if isinstance(reading, GpsFix):
+                        stamps.append((float(reading.t_s[0]), arrival, decoder.last_fix_usec * 1e-6))
+    assert len(stamps) == 60, "ArduPilot's GPS never had a fix"
+    placed, arrival, read = (np.array(column[10:]) for column in zip(*stamps, strict=True))  # once the clock is learnt
+    assert np.all(placed <= arrival)
+    offset = placed - read  # the offset between the clocks, plus an error
+    assert np.ptp(offset) < 0.01, np.ptp(offset)
+    age = arrival - placed  # what arrival stamps were late by (76-100 ms, mean 88, in a run of 2026-11-28)
+    assert np.all((age >= 0.0) & (age < 0.25)), (age.min(), age.max())
