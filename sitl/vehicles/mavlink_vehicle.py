@@ -402,6 +402,15 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
 
 
 # The sensor readings' way into the vehicles (re-exported: callers import them from here).
-from sitl.vehicles.vehicle_telemetry import encode_readings, encode_senses  # noqa: E402
+from sitl.vehicles.vehicle_telemetry import encode_readings, encode_senses, prepend_streams  # noqa: E402
 
-__all__ = ["BUOY", "EBOT", "MOTORBOAT", "SimulatedVehicle", "VehicleCounters", "encode_readings", "encode_senses"]
+__all__ = [
+    "BUOY",
+    "EBOT",
+    "MOTORBOAT",
+    "SimulatedVehicle",
+    "VehicleCounters",
+    "encode_readings",
+    "encode_senses",
+    "prepend_streams",
+]

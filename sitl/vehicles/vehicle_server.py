@@ -42,7 +42,15 @@ from firmware_bridge.readings import SensorReadings
 from firmware_bridge.tlog import TlogWriter, split_frames
 from sitl.vehicles.bodies import BODY_SPECS
 from sitl.vehicles.bodies import EBOT as EBOT_KIND
-from sitl.vehicles.mavlink_vehicle import BUOY, EBOT, MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
+from sitl.vehicles.mavlink_vehicle import (
+    BUOY,
+    EBOT,
+    MOTORBOAT,
+    SimulatedVehicle,
+    encode_readings,
+    encode_senses,
+    prepend_streams,
+)
 
 DEFAULT_BASE_PORT = 5760  # ArduPilot SITL instance 0 (SERIAL0)
 PORT_STRIDE = 10  # ArduPilot SITL: instance i uses base + 10 i
@@ -243,8 +251,7 @@ class VehicleServer:
                 metres_per_tick=self.metres_per_tick,
                 fused_position=True,
             )
-        for endpoint, data in zip(self.endpoints, frames, strict=True):
-            data[:0] = endpoint.vehicle.housekeeping(t_s)  # its streams, with this step's readings
+        prepend_streams(t_s, self.vehicles, frames)
         if ebot_senses is not None and self.rows[EBOT].size:
             ranges, light = ebot_senses
             encode_senses(t_s, self.vehicles, frames, self.rows[EBOT], ranges, light, EBOT_SONAR_RANGE_M)

@@ -28,9 +28,9 @@ def encode_readings(
     """Give each vehicle its readings; with "sensor-rate" streams also append to frames[row] each reading's message
     at once (SCALED_IMU, GPS_RAW_INT and, when `fused_position`, GLOBAL_POSITION_INT for ground stations,
     ATTITUDE, WHEEL_DISTANCE of ticks * metres_per_tick). A reading's agent k is vehicle rows[k] (rows None: k
-    itself). Then call each vehicle's `housekeeping(t_s)` once: its streams send what is due, this step's
-    readings among it (before, the streams ran first, and a message due then went out with the last step's
-    reading: GPS_RAW_INT, which ArduPilot repeats at its interval, would wait a whole step for the new fix)."""
+    itself). Then call `prepend_streams` once: the vehicles' streams send what is due, this step's readings among
+    it (before, the streams ran first, and a message due then went out with the last step's reading: GPS_RAW_INT,
+    which ArduPilot repeats at its interval, would wait a whole step for the new fix)."""
 
     def vehicle_rows(agents):
         return [(i, int(k) if rows is None else int(rows[k])) for i, k in enumerate(agents)]
@@ -73,6 +73,14 @@ def encode_readings(
             vehicles[row].observe("wheels", t_s, distances)
             if direct(row):
                 frames[row] += vehicles[row].telemetry.wheel_distance(t_s, distances)
+
+
+def prepend_streams(t_s: float, vehicles: Sequence[SimulatedVehicle], frames: list[bytearray]) -> None:
+    """Put in front of frames[k] what vehicle k's streams send at t_s (`housekeeping`): once its readings of the
+    step are in (`encode_readings`), so a message due now carries the newest reading, and before the step's
+    sensor-rate frames, as a vehicle sends them."""
+    for vehicle, data in zip(vehicles, frames, strict=True):
+        data[:0] = vehicle.housekeeping(t_s)
 
 
 def encode_senses(

@@ -22,7 +22,7 @@ from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink, receive_all
 from firmware_bridge.commands import rc_override
 from firmware_bridge.rc_channels import RcMap, ResolutionCarry
 from firmware_bridge.readings import SensorReadings
-from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses
+from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses, prepend_streams
 from sitl.vehicles.reading_batches import merge_by_round
 
 FloatArray = np.ndarray
@@ -127,8 +127,7 @@ class MavlinkTransport:
         vessels decode from it."""
         frames = [bytearray() for _ in self.vehicles]
         encode_readings(readings, t_s, self.vehicles, frames, metres_per_tick=self.metres_per_tick)
-        for vehicle, data in zip(self.vehicles, frames, strict=True):
-            data[:0] = vehicle.housekeeping(t_s)  # its streams, with this step's readings (before them, as sent)
+        prepend_streams(t_s, self.vehicles, frames)
         # Decoded all at once (firmware_bridge.batch_decoder), fused as one batch per kind and round
         # (sitl.vehicles.reading_batches).
         decoded, columns = receive_all(self.links, [bytes(data) for data in frames])
