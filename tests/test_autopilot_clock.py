@@ -82,6 +82,21 @@ def test_a_restarted_autopilot_restarts_the_estimate() -> None:
     assert clock.offset_s == pytest.approx(1010.503 + 0.01 * 0.347)  # the leak over the 0.347 s between them
 
 
+@pytest.mark.parametrize("wild_boot_s", [9_000.0, 1.5])
+def test_one_message_with_a_wild_time_is_forgotten_at_once(wild_boot_s: float) -> None:
+    """A message whose time_boot_ms is wrong (a glitch, a forged frame on an unsigned link) gives a sample far off.
+    Far ahead (9000 s): it pulls the smallest sample far down, and fixes dated by it would be older than the
+    estimator's replay window; the next true message goes back from it, which restarts the estimate. Behind
+    (1.5 s, from an autopilot at 5 s): a sample above the estimate, which the min ignores."""
+    clock = AutopilotClock()
+    for k in range(50):
+        clock.observe(0.1 * k, 100.0 + 0.1 * k + 0.003)
+    clock.observe(wild_boot_s, 105.0)
+    clock.observe(5.0, 105.003)
+    assert clock.offset_s == pytest.approx(100.003, abs=0.002)
+    assert clock.fix_time(4_800_000, 105.05) == pytest.approx(104.803, abs=0.002)
+
+
 def test_what_cannot_be_placed_is_stamped_at_its_arrival() -> None:
     clock = AutopilotClock()
     assert clock.fix_time(5_000_000, 100.0) == 100.0  # no clock sample yet
