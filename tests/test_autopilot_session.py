@@ -83,6 +83,14 @@ def test_override_time_and_steer_type_problems_and_warnings() -> None:
     assert AutopilotProfile({"RC_OVERRIDE_TIME": 3}).warnings(0.1) == []
 
 
+def test_the_gps_lag_from_gps1_delay_ms_or_its_older_name() -> None:
+    assert AutopilotProfile({"GPS1_DELAY_MS": 120, "GPS_DELAY_MS": 50}).gps_lag_s == pytest.approx(0.12)
+    assert AutopilotProfile({"GPS_DELAY_MS": 50}).gps_lag_s == pytest.approx(0.05)  # before ArduPilot 4.6
+    for unknown in ({}, {"GPS1_DELAY_MS": 0}, {"GPS1_DELAY_MS": math.nan}):  # 0: the GPS type's default, unsaid
+        assert AutopilotProfile(unknown).gps_lag_s is None
+    assert AutopilotProfile({"GPS1_DELAY_MS": 5000}).gps_lag_s == 1.0  # MAX_GPS_LAG_S
+
+
 def test_gcs_id_top_speed_and_rc_map_from_parameters() -> None:
     p = AutopilotProfile(
         {

@@ -81,6 +81,9 @@ CORE_PARAMS = (
     "GPS_DELAY_MS",  # GPS1_DELAY_MS before ArduPilot 4.6
     *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
+# Names of CORE_PARAMS that only older firmware has (the newer name is read too): ArduPilot ignores a request for
+# a name it does not know, so these go unanswered by a current one.
+LEGACY_PARAMS = frozenset({"SYSID_MYGCS", "GPS_DELAY_MS"})
 DEFAULT_THROTTLE_SLEW_PER_S = 1.0  # MOT_SLEWRATE's default, 100 %/s (libraries/AR_Motors/AP_MotorsUGV.cpp)
 SKID_STEER_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
 MANUAL_SPEED_SCALING = 1  # MANUAL_OPTIONS bit 0: steering scaled down with speed (Rover/Parameters.cpp)

@@ -23,7 +23,7 @@ import pytest
 from pymavlink import mavutil
 from sitl_harness import BINARY, NEEDS_SITL, RoverSitl
 
-from bob_autonomy.onboard.autopilot import CORE_PARAMS, EBOT, MOTORBOAT, AutopilotSession
+from bob_autonomy.onboard.autopilot import CORE_PARAMS, EBOT, LEGACY_PARAMS, MOTORBOAT, AutopilotSession
 from firmware_bridge.commands import Encoder
 
 pytestmark = NEEDS_SITL
@@ -50,7 +50,7 @@ def _session_on(sitl: RoverSitl, kind: str, extra: list[str]) -> tuple:
     `extra`, armed in MANUAL."""
     link = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.serial0}", source_system=255, source_component=190)
     session = AutopilotSession(1, kind, Encoder(), clock=time.monotonic)
-    session.params.update(_read_params(link, [n for n in CORE_PARAMS if n != "SYSID_MYGCS"] + PARAMS + extra))
+    session.params.update(_read_params(link, [n for n in CORE_PARAMS if n not in LEGACY_PARAMS] + PARAMS + extra))
     session.learn()
     link.write(session.set_mode("MANUAL"))
     deadline = time.monotonic() + 30
