@@ -273,8 +273,9 @@ class EbotPipeline:
             if isinstance(reading, GpsFix) and self.frame is not None and self.use_ekf:
                 x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
                 self._predict_without_odometry(reading.agents, reading.t_s, np.column_stack((x, y)))
+                t_s, xy = self._at_filter_time(reading.agents, reading.t_s, np.column_stack((x, y)))
                 sigma = np.full(len(reading.agents), self.gps_sigma_m)
-                self.estimator.update_position(reading.agents, reading.t_s, np.column_stack((x, y)), sigma)
+                self.estimator.update_position(reading.agents, t_s, xy, sigma)
                 continue
             if isinstance(reading, (EncoderReading, WheelDistance)):
                 self.last_odometry_t[reading.agents] = reading.t_s
@@ -303,6 +304,22 @@ class EbotPipeline:
                 self.estimator.carry(i, self.fix_velocity[i] * dt, growth, self.fix_velocity[i])
             if dt >= 0:
                 self.last_fix_t[i], self.last_fix_xy[i] = t, xy[row]
+
+    def _at_filter_time(self, agents: IntArray, t_s: FloatArray, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """A robot without odometry takes a fix dated before its filter's time (ArduPilot's stamp of when it read
+        the fix: firmware_bridge.autopilot_clock; the compass readings since were fused at their arrival) at the
+        filter's time, carried there at the fixes' velocity: xy + v (t_filter - t_fix). Fused at its own time
+        by replay instead, it would undo the carry between fixes (`_predict_without_odometry`), which is no
+        reading the replay knows, and the estimate would fall behind the robot."""
+        times = np.array(np.broadcast_to(np.asarray(t_s, dtype=float), np.shape(agents)))
+        filter_t = self.estimator.t[agents]
+        late = (times < filter_t) & (times - self.last_odometry_t[agents] > ODOMETRY_SILENT_S)
+        if not late.any():
+            return times, xy
+        xy = xy.copy()
+        xy[late] += self.fix_velocity[agents[late]] * (filter_t[late] - times[late])[:, None]
+        times[late] = filter_t[late]
+        return times, xy
 
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
