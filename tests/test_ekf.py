@@ -385,6 +385,28 @@ def test_reading_older_than_the_replay_window_is_rejected_as_late() -> None:
     np.testing.assert_array_equal(f.state, state)
 
 
+def test_a_first_fix_older_than_every_logged_reading_sets_the_position_at_the_filters_time() -> None:
+    """A vessel's first fix is dated when its autopilot read it, less the GPS's lag: up to a few tenths of a second
+    before the first IMU round its filter logged, so no state is there to replay it from. With no position there
+    is nothing to keep: the fix sets it, carried to the filter's time at its own velocity. (Counted late and dropped
+    before: a vessel whose autopilot then repeats that fix, as one standing still before a fleet's start does, had
+    no position at its first step.) Once the filter has a position, such a fix is late as before."""
+    f = BuoyEkf()
+    f.predict(10.0, [0.0, 0.0])
+    f.predict(10.1, [0.0, 0.0])
+    assert f.update_gps(9.9, [500.0, 20.0], [2.0, -1.0]) == "init"
+    np.testing.assert_allclose(f.estimate()[0], [500.4, 19.8])  # 0.2 s on at (2, -1) m/s
+    np.testing.assert_allclose(f.estimate()[1], [2.0, -1.0])
+    assert f.t_s == 10.1 and f.late == 0
+    assert f.update_gps(9.95, [0.0, 0.0]) == "late"
+    np.testing.assert_allclose(f.estimate()[0], [500.4, 19.8])
+    g = BuoyEkf()
+    g.predict(3.0, [0.0, 0.0])
+    assert g.update_gps(2.8, [-7.0, 4.0]) == "init"  # no velocity: taken where it was
+    np.testing.assert_allclose(g.estimate()[0], [-7.0, 4.0])
+    assert g.update_compass(2.5, 1.0) == "late"  # any other reading older than the log is late
+
+
 def test_estimate_is_finite_before_the_first_fix() -> None:
     f = BuoyEkf()
     f.predict(0.0, [0.1, 0.0])
@@ -582,4 +604,5 @@ def test_buoy_bank_gives_the_single_filters_results() -> None:
     np.testing.assert_array_equal(bank.initialized(), [True, False, True])
     bank.update_gps(np.array([0]), np.array([math.nan]), np.array([[0.0, 0.0]]))
     assert bank.rejected == 1
-    assert bank.late == sum(f.late for f in singles) == 2  # the first fixes (t = -0.01) predate the filters' clock
+    # The first fixes (t = -0.01) predate the filters' first reading: with no position yet, they set it there.
+    assert bank.late == sum(f.late for f in singles) == 0

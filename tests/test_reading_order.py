@@ -8,7 +8,7 @@ import numpy as np
 
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation.row_replay import _RowReplay
-from bob_autonomy.onboard.pipeline import BuoyPipeline, _flatten
+from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline, _flatten
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
 
 FRAME = LocalFrame(43.0, 5.0)
@@ -53,3 +53,16 @@ def test_a_late_fix_in_the_batch_gives_the_in_order_result_without_a_replay(monk
     assert replays == []
     np.testing.assert_array_equal(batched.estimator.x, in_order.estimator.x)
     np.testing.assert_array_equal(batched.estimator.P, in_order.estimator.P)
+
+
+def test_a_pipeline_knows_a_position_only_from_a_fix() -> None:
+    """An EKF that has fused no fix estimates (0, 0), finite and no position: a vessel must not step on it."""
+    rng = np.random.default_rng(3)
+    for estimator in ("ekf", "simple"):
+        pipeline = BuoyPipeline(3, FRAME, np.full(3, 10.0), estimator=estimator, controller="simple")
+        pipeline.feed([imu(1.0), imu(1.1)])
+        assert not pipeline.position_known(1.1).any()
+        pipeline.feed([fix(0.95, rng)])  # dated before the filter's first reading (the first fix's lag)
+        assert pipeline.position_known(1.1).all()
+    ebots = EbotPipeline(np.zeros((2, 2)), np.zeros(2), 0.1, 0.2, 1e-3, controller="simple")
+    assert ebots.position_known(0.0).all()  # an eBot starts from its known place

@@ -8,7 +8,16 @@ from numpy.typing import ArrayLike, NDArray
 from bob_autonomy.estimation.buoy_params import _COMPASS, _FIELDS, _GPS, _GYRO, _NX, _PREDICT, BuoyEkfParams
 from bob_autonomy.estimation.buoy_process import _BuoyProcess
 from bob_autonomy.estimation.kalman_rows import wrap_angle
-from bob_autonomy.estimation.row_replay import _IGNORED, _INIT, _REJECTED, _RowReplay, _scalars, _vectors
+from bob_autonomy.estimation.row_replay import (
+    _IGNORED,
+    _INIT,
+    _LATE,
+    _REJECTED,
+    _RowReplay,
+    _scalars,
+    _take,
+    _vectors,
+)
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
 
 
@@ -127,6 +136,27 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         rest = ~clockless
         if rest.any():
             codes[rest] = self._submit(_COMPASS, idx[rest], np.where(np.isnan(t[rest]), 0.0, t[rest]), (head[rest],))
+        return codes
+
+    def _older_than_log(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        """A vessel's first fix may be dated (when its autopilot read it, less the GPS's lag) before the first
+        IMU round its filter logged, so there is no state to replay it from. Without a position there is nothing
+        to keep either: such a fix sets the position at the filter's time, carried there at the fix's ground
+        velocity when it has one (xy + v (t_filter - t_fix)). Dropped, a vessel would wait for a later fix, and
+        an autopilot whose world stands still (a fleet before its start) sends none."""
+        first = (kind == _GPS) & ~self.pos_init[idx]
+        if not first.any():
+            return super()._older_than_log(kind, idx, t, data)
+        codes = np.full(idx.size, _LATE)
+        rest = np.flatnonzero(~first)
+        if rest.size:
+            codes[rest] = super()._older_than_log(kind, idx[rest], t[rest], _take(data, rest))
+        rows = np.flatnonzero(first)
+        agents, clock = idx[rows], self.t[idx[rows]]
+        xy, vel = _take(data, rows)
+        if vel is not None:
+            xy = xy + vel * (clock - t[rows])[:, None]
+        codes[rows] = self._run(_GPS, agents, clock, (xy, vel))
         return codes
 
     # ------------------------------------------------------------ outputs

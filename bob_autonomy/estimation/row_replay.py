@@ -123,11 +123,12 @@ class _RowReplay:
         """Late readings: back to the state just before each, fuse it there, re-run the later entries."""
         codes = np.full(idx.size, _LATE)
         live: list[tuple[int, int, int]] = []  # (row in this call, agent, insertion index in its log)
+        older: list[int] = []  # rows older than their agent's whole log
         restore: dict[int, tuple[tuple, list[int], list[int]]] = {}
         for r, (a, ta) in enumerate(zip(idx.tolist(), t.tolist(), strict=True)):
             times = self._times[a]
             if not times or ta < times[0]:
-                self._late[a] += 1
+                older.append(r)
                 continue
             j = bisect.bisect_right(times, ta)  # >= 1
             previous = self._logs[a][j - 1]
@@ -135,6 +136,9 @@ class _RowReplay:
             group[1].append(a)
             group[2].append(previous[4])
             live.append((r, a, j))
+        if older:
+            rows_older = np.array(older)
+            codes[rows_older] = self._older_than_log(kind, idx[rows_older], t[rows_older], _take(data, rows_older))
         if not live:
             return codes
         for block, agents, rows in restore.values():
@@ -169,6 +173,12 @@ class _RowReplay:
                     entry[3], entry[4], entry[5] = block_e, n, code
             depth += 1
         return codes
+
+    def _older_than_log(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
+        """Readings older than everything their agents' logs hold, so no state to replay them from: counted
+        late (a bank may take some otherwise, see BuoyEkfBank)."""
+        np.add.at(self._late, idx, 1)
+        return np.full(idx.size, _LATE)
 
     def _snapshot(self, idx: IntArray) -> tuple:
         return tuple(getattr(self, name)[idx] for name in self._fields)  # fancy indexing copies

@@ -174,6 +174,12 @@ class BuoyPipeline:
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
 
+    def position_known(self, t_s: float) -> NDArray[np.bool_]:
+        """(n,) whether each estimate holds a position: finite, and with the EKF set by a fix (an EKF that has
+        fused none says (0, 0), which is no position: a vessel stepped on it would broadcast it and steer by it)."""
+        known = np.isfinite(self.estimate(t_s).position).all(axis=1)
+        return known & self.estimator.pos_init if self.use_ekf else known
+
     def drift(self) -> FloatArray:
         """(n, 2) estimated water drift, m/s (zero without the EKF, which is the only one to estimate it)."""
         return self.estimator.drift() if self.use_ekf else np.zeros((self.n, 2))
@@ -323,6 +329,10 @@ class EbotPipeline:
 
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
+
+    def position_known(self, t_s: float) -> NDArray[np.bool_]:
+        """(n,) whether each estimate holds a position (an eBot's filter starts from its known place: finite)."""
+        return np.isfinite(self.estimate(t_s).position).all(axis=1)
 
     def wheels(
         self, wish_mps: FloatArray, wish_heading_rad: FloatArray, t_s: float, *, idle: bool = False

@@ -331,14 +331,6 @@ class Vessel(VesselLinks, AutopilotDriving):
 
     # -- start -----------------------------------------------------------------------------------------
 
-    def _position_known(self, now: float) -> bool:
-        """Whether the estimator has a position: set by a fix (an EKF that has fused none says 0, 0, which is no
-        position; stepped on it, the vessel would broadcast it to the swarm and steer by it), and finite."""
-        set_by_fix = getattr(getattr(self.pipeline, "estimator", None), "pos_init", None)
-        if set_by_fix is not None and not np.all(set_by_fix):
-            return False
-        return bool(np.isfinite(self.pipeline.estimate(now).position).all())
-
     def _place_fixes(self, autopilot_lag_s: float | None) -> None:
         """Say how GPS fixes are timed: ArduPilot's stamp (the time it read the fix) on our clock, less the GPS's
         lag, which is the setting's, or else the autopilot's GPS1_DELAY_MS (autopilot_lag_s, s), or else 0."""
@@ -452,7 +444,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             return
         start = time.perf_counter()
         if not self.has_fix:
-            self.has_fix = self._position_known(now)
+            self.has_fix = bool(self.pipeline.position_known(now).all())
             if not self.has_fix:
                 self._send(self._override(np.zeros(2)))  # waiting for a position: hold still
                 return
