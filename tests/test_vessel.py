@@ -29,6 +29,7 @@ from bob_autonomy.network.mesh import (
     packet_agent_id,
 )
 from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
+from firmware_bridge.readings import GpsFix, ImuReading
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")
@@ -140,6 +141,21 @@ def test_the_gps_lag_the_autopilot_compensates_is_the_one_the_vessel_dates_fixes
     vessel.vehicle.decoder.gps_lag_s = 0.05
     vessel._place_fixes(vessel.autopilot.profile.gps_lag_s)
     assert vessel.vehicle.decoder.gps_lag_s == 0.05
+
+
+def test_the_ground_station_hears_a_position_only_once_a_fix_set_it(stand_in: StandInVehicle) -> None:
+    """Before its first fix the EKF estimates (0, 0), finite and no position: reported, a ground station would show
+    the vessel at the frame's origin. It reports nothing until a fix sets the estimate, then the fix's place."""
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    vessel.pipeline.feed([ImuReading(np.array([0]), np.array([1.0]), np.zeros((1, 2)), np.zeros(1))])
+    vessel._report_position(1.0)
+    assert vessel.gcs._position is None
+    lat, lon = vessel.frame.to_geodetic(np.array([120.0]), np.array([-35.0]))
+    vessel.pipeline.feed([GpsFix(np.array([0]), np.array([1.05]), lat, lon)])
+    vessel._report_position(1.1)
+    assert vessel.gcs._position is not None
+    assert vessel.gcs._position[:2] == pytest.approx((float(lat[0]), float(lon[0])), abs=1e-7)
+    vessel.shutdown()
 
 
 def test_an_autopilot_that_hears_nothing_we_send_stops_the_start_up_saying_so(stand_in: StandInVehicle) -> None:

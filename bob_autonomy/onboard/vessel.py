@@ -302,8 +302,10 @@ class Vessel(VesselLinks, AutopilotDriving):
     # -- link ------------------------------------------------------------------------------------------
 
     def _report_position(self, now: float) -> None:
+        """The estimate to the ground station, once it holds a position (an EKF without a fix says (0, 0): a ground
+        station would show the vessel at the frame's origin); after a filter reset the last report stands."""
         e = self.pipeline.estimate(now)
-        if np.isfinite(e.position).all():
+        if self.pipeline.position_known(now).all():
             lat, lon = self.frame.to_geodetic(e.position[0, 0], e.position[0, 1])
             vx, vy = e.velocity[0]
             heading = float(e.heading[0]) if math.isfinite(e.heading[0]) else None
