@@ -58,6 +58,15 @@ SENT_TIME_FIELDS: dict[int, tuple[str, float]] = {
 }
 
 
+MAX_GPS_ACCURACY_M = 100.0  # a reported accuracy is capped here, as ArduPilot's EKF caps gpsPosAccuracy
+
+
+def horizontal_accuracy_m(h_acc_mm: int) -> float:
+    """GPS_RAW_INT's h_acc (mm, one sigma; 0: not reported, as MAVLink 1 and many GPS drivers leave it) in m,
+    at most MAX_GPS_ACCURACY_M; NaN when not reported."""
+    return min(h_acc_mm / 1000.0, MAX_GPS_ACCURACY_M) if h_acc_mm > 0 else math.nan
+
+
 def _boot_time_s(msg) -> float:
     """The autopilot's time since boot (s) at which msg (one of SENT_TIME_FIELDS) was sent."""
     field_name, unit = SENT_TIME_FIELDS[msg.get_msgId()]
@@ -419,7 +428,8 @@ class TelemetryDecoder:
             course = math.radians(msg.cog / 100.0)  # from north, clockwise
             velocity = np.array([[speed * math.sin(course), speed * math.cos(course)]])
         agents, times = self._rows(self.fix_time(int(msg.time_usec), t_s))
-        return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
+        accuracy = np.array([horizontal_accuracy_m(int(getattr(msg, "h_acc", 0)))])
+        return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity, accuracy)
 
     def fresh_fix(self, time_usec: int) -> bool:
         """Whether a GPS_RAW_INT fix stamped time_usec is new; counts a repeat in `counters.repeated_fix`.

@@ -109,9 +109,11 @@ class TelemetryEncoder:
         fix_type: int = mavlink.GPS_FIX_TYPE_3D_FIX,
         satellites: int = 12,
         hdop: float | None = 0.9,
+        h_acc_m: float | None = None,
     ) -> bytes:
         """GPS_RAW_INT: position (deg), ground velocity (east, north) m/s as speed and course over ground; hdop
-        None: unknown (UINT16_MAX)."""
+        None: unknown (UINT16_MAX); h_acc_m: the receiver's one-sigma horizontal accuracy (m) in the MAVLink 2
+        extension field h_acc (mm), as ArduPilot sends it (None: the extensions left out, h_acc 0 = unknown)."""
         vel, cog = UINT16_MAX, UINT16_MAX
         if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
@@ -129,6 +131,7 @@ class TelemetryEncoder:
             vel,
             cog,
             satellites,
+            *(() if h_acc_m is None else (0, min(2**32 - 1, max(0, round(h_acc_m * 1000.0))))),
         )
 
     def global_position_int(

@@ -7,6 +7,7 @@ import random
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v10 import ardupilotmega as mavlink_v1
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.decoder import (
@@ -89,6 +90,24 @@ def test_a_fix_sent_again_with_its_own_time_is_read_once(mav):
     assert [f.lat_deg[0] for f in fixes] == [47.397742, 47.39775, 47.397742, 47.397742, 47.397742]
     assert d.counters.repeated_fix == 3 and d.counters.no_fix == 1 and d.counters.decoded == 9
     assert_consistent(d)
+
+
+def test_the_receivers_own_accuracy_is_read_from_h_acc(mav):
+    """ArduPilot puts its GPS's one-sigma horizontal accuracy in GPS_RAW_INT's extension field h_acc, mm
+    (AP_GPS::send_mavlink_gps_raw); 0 means not reported, and a MAVLink 1 frame has no extensions at all. Its EKF
+    caps the accuracy at 100 m."""
+    d = decoder()
+    sent = [(2_500, 2.5), (0, None), (250_000, 100.0), (1, 0.001)]
+    for h_acc_mm, metres in sent:
+        message = mav.gps_raw_int_encode(0, 3, 473977420, 85455940, 500, 100, 100, 250, 9000, 9, 0, h_acc_mm)
+        (fix,) = d.feed(pack(mav, message))
+        if metres is None:
+            assert math.isnan(fix.accuracy_m[0])
+        else:
+            assert fix.accuracy_m[0] == metres
+    v1 = mavlink_v1.MAVLink(None, srcSystem=1, srcComponent=1)  # MAVLink 1 as ArduPilot sends it: base fields
+    (fix,) = d.feed(bytes(v1.gps_raw_int_encode(0, 3, 473977420, 85455940, 500, 100, 100, 250, 9000, 9).pack(v1)))
+    assert math.isnan(fix.accuracy_m[0])
 
 
 def test_gps_without_fix_gives_nothing(mav):

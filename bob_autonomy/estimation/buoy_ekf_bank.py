@@ -92,10 +92,18 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         self._update_gyro(agents, t_s, gyro_z_radps)
 
     def update_gps(
-        self, agents: IntArray, t_s: ArrayLike, xy_m: FloatArray, velocity_mps: FloatArray | None = None
+        self,
+        agents: IntArray,
+        t_s: ArrayLike,
+        xy_m: FloatArray,
+        velocity_mps: FloatArray | None = None,
+        accuracy_m: ArrayLike | None = None,
     ) -> None:
-        """Fuse fixes (k, 2) (local x east, y north, m) measured at t_s, and ground velocities (k, 2) m/s if given."""
-        self._update_gps(agents, t_s, xy_m, velocity_mps)
+        """Fuse fixes (k, 2) (local x east, y north, m) measured at t_s, and ground velocities (k, 2) m/s if given.
+        accuracy_m (k,): the receivers' own one-sigma horizontal accuracy, m (0 or NaN: not reported); a fix is
+        fused with the larger of it and `gps_sigma_m`, as ArduPilot's EKF does (max(gpsPosAccuracy,
+        EK3_POSNE_M_NSE), libraries/AP_NavEKF3)."""
+        self._update_gps(agents, t_s, xy_m, velocity_mps, accuracy_m)
 
     def update_compass(self, agents: IntArray, heading_rad: FloatArray, t_s: ArrayLike | None = None) -> None:
         """Compass headings (rad) measured at t_s (None: at each filter's current time)."""
@@ -111,9 +119,15 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         idx, t = self._batch(agents, t_s)
         return self._submit(_PREDICT, idx, t, (_vectors(accel, idx.size), _vectors(thrust, idx.size)))
 
-    def _update_gps(self, agents: ArrayLike, t_s: ArrayLike, xy: ArrayLike, vel: ArrayLike | None) -> IntArray:
+    def _update_gps(
+        self, agents: ArrayLike, t_s: ArrayLike, xy: ArrayLike, vel: ArrayLike | None, accuracy: ArrayLike | None = None
+    ) -> IntArray:
         idx, t = self._batch(agents, t_s)
-        return self._submit(_GPS, idx, t, (_vectors(xy, idx.size), _vectors(vel, idx.size)))
+        acc = None
+        if accuracy is not None:  # not reported (0 or NaN) -> 0: the noise parameter alone
+            acc = np.nan_to_num(_scalars(accuracy, idx.size), nan=0.0, posinf=0.0, neginf=0.0)
+            acc = acc if (acc > self.params.gps_sigma_m).any() else None
+        return self._submit(_GPS, idx, t, (_vectors(xy, idx.size), _vectors(vel, idx.size), acc))
 
     def _update_gyro(self, agents: ArrayLike, t_s: ArrayLike, rate: ArrayLike) -> IntArray:
         idx, t = self._batch(agents, t_s)
@@ -153,10 +167,10 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
             codes[rest] = super()._older_than_log(kind, idx[rest], t[rest], _take(data, rest))
         rows = np.flatnonzero(first)
         agents, clock = idx[rows], self.t[idx[rows]]
-        xy, vel = _take(data, rows)
+        xy, vel, acc = _take(data, rows)
         if vel is not None:
-            xy = xy + vel * (clock - t[rows])[:, None]
-        codes[rows] = self._run(_GPS, agents, clock, (xy, vel))
+            xy = xy + vel * (clock - t[rows])[:, None]  # as ArduPilot's EKF3 ResetPosition carries its fix
+        codes[rows] = self._run(_GPS, agents, clock, (xy, vel, acc))
         return codes
 
     # ------------------------------------------------------------ outputs

@@ -25,23 +25,29 @@ class _BuoyUpdates(_RowFusion):
 
     # ------------------------------------------------------------ readings
 
-    def _handle_gps(self, idx: IntArray, xy: FloatArray, vel: FloatArray | None) -> IntArray:
+    def _handle_gps(self, idx: IntArray, xy: FloatArray, vel: FloatArray | None, acc: FloatArray | None) -> IntArray:
+        """Fixes: the first sets each row's position (and velocity), later ones are fused; acc (k,): the receivers'
+        horizontal accuracies (m, 0 when not reported), each row's position noise max(gps_sigma_m, acc)."""
         p = self.params
         cols, h_jac, r_cov = _measurement(
             _NX,
             (0, 1) if vel is None else (0, 1, 2, 3),
             tuple(np.square([p.gps_sigma_m] * 2 + ([] if vel is None else [p.gps_velocity_sigma_mps] * 2))),
         )
+        if acc is not None:
+            r_cov = np.repeat(r_cov[None], idx.size, axis=0)
+            r_cov[:, 0, 0] = r_cov[:, 1, 1] = np.square(np.maximum(p.gps_sigma_m, acc))
         z = xy if vel is None else np.concatenate((xy, vel), axis=1)
         codes = np.full(idx.size, _INIT)
         first = ~self.pos_init[idx]
         if first.any():  # the first fix initialises position (and velocity), however far from the prior
-            self._set_states(idx[first], cols, z[first], r_cov)
+            self._set_states(idx[first], cols, z[first], r_cov if acc is None else r_cov[first])
             self.pos_init[idx[first]] = True
         rows = np.flatnonzero(~first)
         if rows.size:
             agents = idx[rows]
-            codes[rows] = self._fuse(agents, _GPS, z[rows], self.x[agents][:, cols], h_jac, r_cov, False, cols)
+            r_rows = r_cov if acc is None else r_cov[rows]
+            codes[rows] = self._fuse(agents, _GPS, z[rows], self.x[agents][:, cols], h_jac, r_rows, False, cols)
         return codes
 
     def _handle_compass(self, idx: IntArray, heading_rad: FloatArray) -> IntArray:

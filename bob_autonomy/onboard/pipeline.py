@@ -165,7 +165,10 @@ class BuoyPipeline:
                 xy = np.column_stack((x, y))
                 self.last_fix_xy[reading.agents] = xy
                 self.last_fix_t[reading.agents] = reading.t_s
-                self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps)
+                if self.use_ekf:
+                    self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps, reading.accuracy_m)
+                else:
+                    self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps)
             elif isinstance(reading, CompassReading):
                 _update_compass(self.estimator, reading, self.use_ekf)
             else:
@@ -281,6 +284,8 @@ class EbotPipeline:
                 self._predict_without_odometry(reading.agents, reading.t_s, np.column_stack((x, y)))
                 t_s, xy = self._at_filter_time(reading.agents, reading.t_s, np.column_stack((x, y)))
                 sigma = np.full(len(reading.agents), self.gps_sigma_m)
+                if reading.accuracy_m is not None:  # the receiver's own accuracy where it is worse (NaN: none)
+                    sigma = np.fmax(sigma, reading.accuracy_m)
                 self.estimator.update_position(reading.agents, t_s, xy, sigma)
                 continue
             if isinstance(reading, (EncoderReading, WheelDistance)):

@@ -76,3 +76,20 @@ def test_the_decoder_dates_each_of_ardupilots_fixes_by_the_time_ardupilot_read_i
     assert np.ptp(offset) < 0.01, np.ptp(offset)
     age = arrival - placed  # what arrival stamps were late by (76-100 ms, mean 88, in a run of 2026-11-28)
     assert np.all((age >= 0.0) & (age < 0.25)), (age.min(), age.max())
+
+
+def test_the_decoder_reads_the_accuracy_ardupilots_gps_reports(tmp_path) -> None:
+    """ArduPilot sends its GPS's own one-sigma horizontal accuracy in GPS_RAW_INT's h_acc (mm); its simulated
+    u-blox reports SIM_GPS1_ACC. The vessel's decoder reads it in metres, and its EKF fuses each fix with the
+    larger of it and its own noise parameter (bob_autonomy.estimation.BuoyEkfBank.update_gps)."""
+    with RoverSitl(BINARY, "omni", tmp_path, params={"SIM_GPS1_ACC": 6.5}) as sitl:
+        sitl.wait_initialised()
+        with socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0) as link:
+            link.sendall(set_message_interval(Encoder(), 1, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 5.0))
+            decoder = TelemetryDecoder(source_system=1, source_component=1, fused_position=False)  # as a vessel
+            accuracies: list[float] = []
+            deadline = time.monotonic() + 60.0
+            while time.monotonic() < deadline and len(accuracies) < 10:
+                accuracies += [float(r.accuracy_m[0]) for r in decoder.feed(link.recv(65536)) if isinstance(r, GpsFix)]
+    assert len(accuracies) == 10, "ArduPilot's GPS never had a fix"
+    assert accuracies[-5:] == [6.5] * 5, accuracies  # the first fixes may come before the driver's accuracy
