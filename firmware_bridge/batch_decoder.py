@@ -30,6 +30,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from firmware_bridge.decoder import (
     _CONVERTERS,
     MAX_GPS_ACCURACY_M,
+    MAX_GPS_SPEED_ACCURACY_MPS,
     SENT_TIME_FIELDS,
     STANDARD_GRAVITY_MPS2,
     UINT16_MAX,
@@ -253,21 +254,22 @@ def _gps_raw_int(records, agents, t_s, decoders, columns: Columns) -> list[objec
             t_s[j] = decoders[j].fix_time(stamp, float(t_s[j]))  # when it was taken
     moving = read & (records["vel"] != UINT16_MAX) & (records["cog"] != UINT16_MAX)
     lat, lon = records["lat"] / 1e7, records["lon"] / 1e7
-    h_acc = records["h_acc"]
-    with np.errstate(invalid="ignore"):
-        accuracy = np.where(h_acc > 0, np.minimum(h_acc / 1000.0, MAX_GPS_ACCURACY_M), np.nan)
+    h_acc, vel_acc = records["h_acc"], records["vel_acc"]
+    accuracy = np.where(h_acc > 0, np.minimum(h_acc / 1000.0, MAX_GPS_ACCURACY_M), np.nan)
+    speed_accuracy = np.where(vel_acc > 0, np.minimum(vel_acc / 1000.0, MAX_GPS_SPEED_ACCURACY_MPS), np.nan)
     if moving.any():
         speed = records["vel"][moving] / 100.0
         course = [math.radians(c / 100.0) for c in records["cog"][moving].tolist()]
         velocity = np.array([(s * math.sin(c), s * math.cos(c)) for s, c in zip(speed.tolist(), course, strict=True)])
-        placed = columns.add((GpsFix, (True, True, True, True, True, True)), agents=agents[moving], t_s=t_s[moving],
-                             lat_deg=lat[moving], lon_deg=lon[moving], velocity_mps=velocity,
-                             accuracy_m=accuracy[moving])  # fmt: skip
+        placed = columns.add((GpsFix, (True,) * 7), agents=agents[moving], t_s=t_s[moving], lat_deg=lat[moving],
+                             lon_deg=lon[moving], velocity_mps=velocity, accuracy_m=accuracy[moving],
+                             speed_accuracy_mps=speed_accuracy[moving])  # fmt: skip
         _place(rows, moving, placed)
     still = read & ~moving
     if still.any():
-        placed = columns.add((GpsFix, (True, True, True, True, False, True)), agents=agents[still], t_s=t_s[still],
-                             lat_deg=lat[still], lon_deg=lon[still], accuracy_m=accuracy[still])  # fmt: skip
+        placed = columns.add((GpsFix, (True, True, True, True, False, True, True)), agents=agents[still],
+                             t_s=t_s[still], lat_deg=lat[still], lon_deg=lon[still], accuracy_m=accuracy[still],
+                             speed_accuracy_mps=speed_accuracy[still])  # fmt: skip
         _place(rows, still, placed)
     return rows
 
@@ -281,7 +283,7 @@ def _global_position_int(records, agents, t_s, decoders, columns: Columns) -> li
     if known.any():
         r = records[known]
         velocity = np.column_stack((r["vy"] / 100.0, r["vx"] / 100.0))  # NED x north, y east -> east, north
-        placed = columns.add((GpsFix, (True, True, True, True, True, False)), agents=agents[known], t_s=t_s[known],
+        placed = columns.add((GpsFix, (True,) * 5 + (False, False)), agents=agents[known], t_s=t_s[known],
                              lat_deg=r["lat"] / 1e7, lon_deg=r["lon"] / 1e7, velocity_mps=velocity)  # fmt: skip
         _place(rows, known, placed)
     return rows

@@ -58,13 +58,15 @@ SENT_TIME_FIELDS: dict[int, tuple[str, float]] = {
 }
 
 
-MAX_GPS_ACCURACY_M = 100.0  # a reported accuracy is capped here, as ArduPilot's EKF caps gpsPosAccuracy
+# Reported accuracies are capped here, as ArduPilot's EKF3 caps gpsPosAccuracy (m) and gpsSpdAccuracy (m/s).
+MAX_GPS_ACCURACY_M = 100.0
+MAX_GPS_SPEED_ACCURACY_MPS = 50.0
 
 
-def horizontal_accuracy_m(h_acc_mm: int) -> float:
-    """GPS_RAW_INT's h_acc (mm, one sigma; 0: not reported, as MAVLink 1 and many GPS drivers leave it) in m,
-    at most MAX_GPS_ACCURACY_M; NaN when not reported."""
-    return min(h_acc_mm / 1000.0, MAX_GPS_ACCURACY_M) if h_acc_mm > 0 else math.nan
+def reported_accuracy(milli: int, cap: float) -> float:
+    """GPS_RAW_INT's h_acc (mm) or vel_acc (mm/s), one sigma, in m or m/s, at most `cap`; NaN when 0 (not
+    reported: MAVLink 1 has no such field, and many GPS drivers leave it 0)."""
+    return min(milli / 1000.0, cap) if milli > 0 else math.nan
 
 
 def _boot_time_s(msg) -> float:
@@ -428,8 +430,10 @@ class TelemetryDecoder:
             course = math.radians(msg.cog / 100.0)  # from north, clockwise
             velocity = np.array([[speed * math.sin(course), speed * math.cos(course)]])
         agents, times = self._rows(self.fix_time(int(msg.time_usec), t_s))
-        accuracy = np.array([horizontal_accuracy_m(int(getattr(msg, "h_acc", 0)))])
-        return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity, accuracy)
+        accuracy = np.array([reported_accuracy(int(getattr(msg, "h_acc", 0)), MAX_GPS_ACCURACY_M)])
+        speed_accuracy = np.array([reported_accuracy(int(getattr(msg, "vel_acc", 0)), MAX_GPS_SPEED_ACCURACY_MPS)])
+        lat, lon = np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7])
+        return GpsFix(agents, times, lat, lon, velocity, accuracy, speed_accuracy)
 
     def fresh_fix(self, time_usec: int) -> bool:
         """Whether a GPS_RAW_INT fix stamped time_usec is new; counts a repeat in `counters.repeated_fix`.

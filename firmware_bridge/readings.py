@@ -20,8 +20,9 @@ IntArray = NDArray[np.intp]
 @dataclass(frozen=True, eq=False)
 class GpsFix:
     """GPS fixes: agent indices (k,), measurement times t_s (k,), WGS-84 lat_deg, lon_deg (k,),
-    ground velocity_mps (k, 2) east, north (None when the source has none), and accuracy_m (k,): the receiver's
-    own one-sigma horizontal accuracy, m (NaN where it reported none; None when the source has no such field)."""
+    ground velocity_mps (k, 2) east, north (None when the source has none), and the receiver's own one-sigma
+    accuracies: accuracy_m (k,) horizontal, m, and speed_accuracy_mps (k,), m/s (NaN where it reported none; None
+    when the source has no such field)."""
 
     agents: IntArray
     t_s: FloatArray
@@ -29,6 +30,7 @@ class GpsFix:
     lon_deg: FloatArray
     velocity_mps: FloatArray | None = None
     accuracy_m: FloatArray | None = None
+    speed_accuracy_mps: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)

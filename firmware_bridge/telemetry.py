@@ -110,10 +110,16 @@ class TelemetryEncoder:
         satellites: int = 12,
         hdop: float | None = 0.9,
         h_acc_m: float | None = None,
+        vel_acc_mps: float | None = None,
     ) -> bytes:
         """GPS_RAW_INT: position (deg), ground velocity (east, north) m/s as speed and course over ground; hdop
-        None: unknown (UINT16_MAX); h_acc_m: the receiver's one-sigma horizontal accuracy (m) in the MAVLink 2
-        extension field h_acc (mm), as ArduPilot sends it (None: the extensions left out, h_acc 0 = unknown)."""
+        None: unknown (UINT16_MAX); h_acc_m, vel_acc_mps: the receiver's one-sigma horizontal (m) and speed (m/s)
+        accuracies in the MAVLink 2 extension fields h_acc (mm) and vel_acc (mm/s), as ArduPilot sends them (both
+        None: the extensions left out; one None: that one 0, unknown)."""
+        extensions = ()
+        if h_acc_m is not None or vel_acc_mps is not None:
+            milli = [min(2**32 - 1, max(0, round(v * 1000.0))) if v is not None else 0 for v in (h_acc_m, vel_acc_mps)]
+            extensions = (0, milli[0], 0, milli[1])  # alt_ellipsoid, h_acc, v_acc, vel_acc
         vel, cog = UINT16_MAX, UINT16_MAX
         if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
@@ -131,7 +137,7 @@ class TelemetryEncoder:
             vel,
             cog,
             satellites,
-            *(() if h_acc_m is None else (0, min(2**32 - 1, max(0, round(h_acc_m * 1000.0))))),
+            *extensions,
         )
 
     def global_position_int(

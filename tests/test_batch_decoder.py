@@ -36,7 +36,8 @@ def _random_telemetry(rng: np.random.Generator, encoder: TelemetryEncoder, count
             t_fix = fix_times[int(rng.integers(2))] if rng.random() < 0.5 else t
             # unreported, 0 (unknown), reported, over the cap; picked by the latitude (no draw: the stream stays)
             h_acc = [None, 0.0, 0.4, 3.7, 250.0][int(abs(lat) * 1000) % 5]
-            out += encoder.gps_raw_int(t_fix, lat, lon, velocity, fix_type=fix, h_acc_m=h_acc)
+            vel_acc = [None, 0.0, 0.05, 0.6, 80.0][int(abs(lon) * 1000) % 5]
+            out += encoder.gps_raw_int(t_fix, lat, lon, velocity, fix_type=fix, h_acc_m=h_acc, vel_acc_mps=vel_acc)
         elif kind == 1:
             lat, lon = (0.0, 0.0) if special else (rng.uniform(-89, 89), rng.uniform(-179, 179))
             out += encoder.global_position_int(t, lat, lon, tuple(rng.normal(0, 200, 2)), rng.uniform(-4, 4))

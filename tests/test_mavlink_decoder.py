@@ -92,22 +92,22 @@ def test_a_fix_sent_again_with_its_own_time_is_read_once(mav):
     assert_consistent(d)
 
 
-def test_the_receivers_own_accuracy_is_read_from_h_acc(mav):
-    """ArduPilot puts its GPS's one-sigma horizontal accuracy in GPS_RAW_INT's extension field h_acc, mm
-    (AP_GPS::send_mavlink_gps_raw); 0 means not reported, and a MAVLink 1 frame has no extensions at all. Its EKF
-    caps the accuracy at 100 m."""
+def test_the_receivers_own_accuracies_are_read_from_h_acc_and_vel_acc(mav):
+    """ArduPilot puts its GPS's one-sigma horizontal and speed accuracies in GPS_RAW_INT's extension fields h_acc
+    (mm) and vel_acc (mm/s) (AP_GPS::send_mavlink_gps_raw); 0 means not reported, and a MAVLink 1 frame has no
+    extensions at all. Its EKF3 caps them at 100 m and 50 m/s."""
     d = decoder()
-    sent = [(2_500, 2.5), (0, None), (250_000, 100.0), (1, 0.001)]
-    for h_acc_mm, metres in sent:
-        message = mav.gps_raw_int_encode(0, 3, 473977420, 85455940, 500, 100, 100, 250, 9000, 9, 0, h_acc_mm)
+    sent = [(2_500, 300, 2.5, 0.3), (0, 0, None, None), (250_000, 90_000, 100.0, 50.0), (1, 1, 0.001, 0.001)]
+    for h_acc_mm, vel_acc_mmps, metres, mps in sent:
+        message = mav.gps_raw_int_encode(
+            0, 3, 473977420, 85455940, 500, 100, 100, 250, 9000, 9, 0, h_acc_mm, 0, vel_acc_mmps
+        )
         (fix,) = d.feed(pack(mav, message))
-        if metres is None:
-            assert math.isnan(fix.accuracy_m[0])
-        else:
-            assert fix.accuracy_m[0] == metres
+        for got, want in ((fix.accuracy_m[0], metres), (fix.speed_accuracy_mps[0], mps)):
+            assert math.isnan(got) if want is None else got == want
     v1 = mavlink_v1.MAVLink(None, srcSystem=1, srcComponent=1)  # MAVLink 1 as ArduPilot sends it: base fields
     (fix,) = d.feed(bytes(v1.gps_raw_int_encode(0, 3, 473977420, 85455940, 500, 100, 100, 250, 9000, 9).pack(v1)))
-    assert math.isnan(fix.accuracy_m[0])
+    assert math.isnan(fix.accuracy_m[0]) and math.isnan(fix.speed_accuracy_mps[0])
 
 
 def test_gps_without_fix_gives_nothing(mav):

@@ -47,12 +47,18 @@ class BuoyEkf:
         return OUTCOMES[self.bank._predict(self._ROW, t_s, accel, thrust)[0]]
 
     def update_gps(
-        self, t_s: float, xy_m: ArrayLike, velocity_mps: ArrayLike | None = None, accuracy_m: float | None = None
+        self,
+        t_s: float,
+        xy_m: ArrayLike,
+        velocity_mps: ArrayLike | None = None,
+        accuracy_m: float | None = None,
+        speed_accuracy_mps: float | None = None,
     ) -> str:
-        """Fuse a fix (local x east, y north, m) measured at t_s, and the ground velocity (m/s) if given;
-        accuracy_m: the receiver's horizontal accuracy (m), if it reports one (BuoyEkfBank.update_gps)."""
+        """Fuse a fix (local x east, y north, m) measured at t_s, and the ground velocity (m/s) if given; the
+        receiver's horizontal (m) and speed (m/s) accuracies if it reports them (BuoyEkfBank.update_gps)."""
         vel = None if velocity_mps is None else np.reshape(velocity_mps, (1, 2))
-        return OUTCOMES[self.bank._update_gps(self._ROW, t_s, np.reshape(xy_m, (1, 2)), vel, accuracy_m)[0]]
+        xy = np.reshape(xy_m, (1, 2))
+        return OUTCOMES[self.bank._update_gps(self._ROW, t_s, xy, vel, accuracy_m, speed_accuracy_mps)[0]]
 
     def update_compass(self, t_s: float | None, heading_rad: float) -> str:
         """Fuse a compass heading (rad) measured at t_s (None: at the filter's current time)."""

@@ -98,12 +98,14 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         xy_m: FloatArray,
         velocity_mps: FloatArray | None = None,
         accuracy_m: ArrayLike | None = None,
+        speed_accuracy_mps: ArrayLike | None = None,
     ) -> None:
         """Fuse fixes (k, 2) (local x east, y north, m) measured at t_s, and ground velocities (k, 2) m/s if given.
-        accuracy_m (k,): the receivers' own one-sigma horizontal accuracy, m (0 or NaN: not reported); a fix is
-        fused with the larger of it and `gps_sigma_m`, as ArduPilot's EKF does (max(gpsPosAccuracy,
-        EK3_POSNE_M_NSE), libraries/AP_NavEKF3)."""
-        self._update_gps(agents, t_s, xy_m, velocity_mps, accuracy_m)
+        accuracy_m, speed_accuracy_mps (k,): the receivers' own one-sigma horizontal and speed accuracies, m and
+        m/s (0 or NaN: not reported). A fix is fused with the larger of each and the filter's own noise
+        (`gps_sigma_m`, `gps_velocity_sigma_mps`), as ArduPilot's EKF3 does (max(gpsPosAccuracy, EK3_POSNE_M_NSE),
+        max(gpsSpdAccuracy, EK3_VELNE_M_NSE): libraries/AP_NavEKF3)."""
+        self._update_gps(agents, t_s, xy_m, velocity_mps, accuracy_m, speed_accuracy_mps)
 
     def update_compass(self, agents: IntArray, heading_rad: FloatArray, t_s: ArrayLike | None = None) -> None:
         """Compass headings (rad) measured at t_s (None: at each filter's current time)."""
@@ -120,14 +122,32 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         return self._submit(_PREDICT, idx, t, (_vectors(accel, idx.size), _vectors(thrust, idx.size)))
 
     def _update_gps(
-        self, agents: ArrayLike, t_s: ArrayLike, xy: ArrayLike, vel: ArrayLike | None, accuracy: ArrayLike | None = None
+        self,
+        agents: ArrayLike,
+        t_s: ArrayLike,
+        xy: ArrayLike,
+        vel: ArrayLike | None,
+        accuracy: ArrayLike | None = None,
+        speed_accuracy: ArrayLike | None = None,
     ) -> IntArray:
         idx, t = self._batch(agents, t_s)
-        acc = None
-        if accuracy is not None:  # not reported (0 or NaN) -> 0: the noise parameter alone
-            acc = np.nan_to_num(_scalars(accuracy, idx.size), nan=0.0, posinf=0.0, neginf=0.0)
-            acc = acc if (acc > self.params.gps_sigma_m).any() else None
-        return self._submit(_GPS, idx, t, (_vectors(xy, idx.size), _vectors(vel, idx.size), acc))
+        vel = _vectors(vel, idx.size)
+        return self._submit(
+            _GPS, idx, t, (_vectors(xy, idx.size), vel, self._reported(idx.size, accuracy, speed_accuracy, vel))
+        )
+
+    def _reported(
+        self, k: int, accuracy: ArrayLike | None, speed_accuracy: ArrayLike | None, vel: FloatArray | None
+    ) -> FloatArray | None:
+        """(k, 2) the receivers' accuracies (m, m/s; 0 where not reported), or None when none is worse than the
+        filter's own noise, which then stands alone (the same arithmetic as without a report)."""
+        p = self.params
+        position, speed = (
+            np.zeros(k) if values is None else np.nan_to_num(_scalars(values, k), nan=0.0, posinf=0.0, neginf=0.0)
+            for values in (accuracy, speed_accuracy)
+        )
+        worse = (position > p.gps_sigma_m).any() or (vel is not None and (speed > p.gps_velocity_sigma_mps).any())
+        return np.column_stack((position, speed)) if worse else None
 
     def _update_gyro(self, agents: ArrayLike, t_s: ArrayLike, rate: ArrayLike) -> IntArray:
         idx, t = self._batch(agents, t_s)

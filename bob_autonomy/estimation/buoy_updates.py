@@ -26,8 +26,9 @@ class _BuoyUpdates(_RowFusion):
     # ------------------------------------------------------------ readings
 
     def _handle_gps(self, idx: IntArray, xy: FloatArray, vel: FloatArray | None, acc: FloatArray | None) -> IntArray:
-        """Fixes: the first sets each row's position (and velocity), later ones are fused; acc (k,): the receivers'
-        horizontal accuracies (m, 0 when not reported), each row's position noise max(gps_sigma_m, acc)."""
+        """Fixes: the first sets each row's position (and velocity), later ones are fused; acc (k, 2): the receivers'
+        horizontal and speed accuracies (m, m/s; 0 when not reported), each row's noise the larger of those and
+        gps_sigma_m, gps_velocity_sigma_mps."""
         p = self.params
         cols, h_jac, r_cov = _measurement(
             _NX,
@@ -36,7 +37,9 @@ class _BuoyUpdates(_RowFusion):
         )
         if acc is not None:
             r_cov = np.repeat(r_cov[None], idx.size, axis=0)
-            r_cov[:, 0, 0] = r_cov[:, 1, 1] = np.square(np.maximum(p.gps_sigma_m, acc))
+            r_cov[:, 0, 0] = r_cov[:, 1, 1] = np.square(np.maximum(p.gps_sigma_m, acc[:, 0]))
+            if vel is not None:
+                r_cov[:, 2, 2] = r_cov[:, 3, 3] = np.square(np.maximum(p.gps_velocity_sigma_mps, acc[:, 1]))
         z = xy if vel is None else np.concatenate((xy, vel), axis=1)
         codes = np.full(idx.size, _INIT)
         first = ~self.pos_init[idx]

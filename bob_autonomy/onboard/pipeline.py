@@ -166,7 +166,10 @@ class BuoyPipeline:
                 self.last_fix_xy[reading.agents] = xy
                 self.last_fix_t[reading.agents] = reading.t_s
                 if self.use_ekf:
-                    self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps, reading.accuracy_m)
+                    self.estimator.update_gps(
+                        reading.agents, reading.t_s, xy, reading.velocity_mps, reading.accuracy_m,
+                        reading.speed_accuracy_mps,
+                    )  # fmt: skip
                 else:
                     self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps)
             elif isinstance(reading, CompassReading):

@@ -11,6 +11,7 @@ Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
 
 from __future__ import annotations
 
+import math
 import socket
 import time
 
@@ -78,18 +79,26 @@ def test_the_decoder_dates_each_of_ardupilots_fixes_by_the_time_ardupilot_read_i
     assert np.all((age >= 0.0) & (age < 0.25)), (age.min(), age.max())
 
 
-def test_the_decoder_reads_the_accuracy_ardupilots_gps_reports(tmp_path) -> None:
-    """ArduPilot sends its GPS's own one-sigma horizontal accuracy in GPS_RAW_INT's h_acc (mm); its simulated
-    u-blox reports SIM_GPS1_ACC. The vessel's decoder reads it in metres, and its EKF fuses each fix with the
-    larger of it and its own noise parameter (bob_autonomy.estimation.BuoyEkfBank.update_gps)."""
+def test_the_decoder_reads_the_accuracies_ardupilots_gps_reports(tmp_path) -> None:
+    """ArduPilot sends its GPS's own one-sigma horizontal and speed accuracies in GPS_RAW_INT's h_acc (mm) and
+    vel_acc (mm/s); its simulated u-blox reports SIM_GPS1_ACC as the former. The vessel's decoder reads them in m
+    and m/s, as pymavlink reads the same frames, and its EKF fuses each fix with the larger of them and its own noise
+    parameters (bob_autonomy.estimation.BuoyEkfBank.update_gps)."""
     with RoverSitl(BINARY, "omni", tmp_path, params={"SIM_GPS1_ACC": 6.5}) as sitl:
         sitl.wait_initialised()
         with socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0) as link:
             link.sendall(set_message_interval(Encoder(), 1, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 5.0))
             decoder = TelemetryDecoder(source_system=1, source_component=1, fused_position=False)  # as a vessel
-            accuracies: list[float] = []
+            raw = []
+            decoder.message_hook = lambda msg: raw.append(msg) if msg.get_type() == "GPS_RAW_INT" else None
+            read: list[tuple[float, float, object]] = []
             deadline = time.monotonic() + 60.0
-            while time.monotonic() < deadline and len(accuracies) < 10:
-                accuracies += [float(r.accuracy_m[0]) for r in decoder.feed(link.recv(65536)) if isinstance(r, GpsFix)]
-    assert len(accuracies) == 10, "ArduPilot's GPS never had a fix"
-    assert accuracies[-5:] == [6.5] * 5, accuracies  # the first fixes may come before the driver's accuracy
+            while time.monotonic() < deadline and len(read) < 10:
+                for r in decoder.feed(link.recv(65536)):
+                    if isinstance(r, GpsFix):
+                        read.append((float(r.accuracy_m[0]), float(r.speed_accuracy_mps[0]), raw[-1]))
+    assert len(read) == 10, "ArduPilot's GPS never had a fix"
+    assert [h for h, _, _ in read[-5:]] == [6.5] * 5, read  # the first fixes may come before the driver's accuracy
+    for horizontal, speed, msg in read:
+        assert horizontal == msg.h_acc / 1000.0 or (msg.h_acc == 0 and math.isnan(horizontal))
+        assert speed == msg.vel_acc / 1000.0 or (msg.vel_acc == 0 and math.isnan(speed))
