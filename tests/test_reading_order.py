@@ -55,14 +55,17 @@ def test_a_late_fix_in_the_batch_gives_the_in_order_result_without_a_replay(monk
     np.testing.assert_array_equal(batched.estimator.P, in_order.estimator.P)
 
 
-def test_a_pipeline_knows_a_position_only_from_a_fix() -> None:
-    """An EKF that has fused no fix estimates (0, 0), finite and no position: a vessel must not step on it."""
+def test_a_pipeline_knows_a_position_only_from_a_fix_and_a_heading_only_from_a_compass() -> None:
+    """An EKF that has fused no fix estimates (0, 0) and no compass reading 0 rad, finite and unknown: a vessel must
+    not step on them."""
     rng = np.random.default_rng(3)
     for estimator in ("ekf", "simple"):
         pipeline = BuoyPipeline(3, FRAME, np.full(3, 10.0), estimator=estimator, controller="simple")
         pipeline.feed([imu(1.0), imu(1.1)])
-        assert not pipeline.position_known(1.1).any()
+        assert not pipeline.position_known(1.1).any() and not pipeline.heading_known(1.1).any()
         pipeline.feed([fix(0.95, rng)])  # dated before the filter's first reading (the first fix's lag)
-        assert pipeline.position_known(1.1).all()
+        assert pipeline.position_known(1.1).all() and not pipeline.heading_known(1.1).any()
+        pipeline.feed([compass(1.1)])
+        assert pipeline.heading_known(1.1).all()
     ebots = EbotPipeline(np.zeros((2, 2)), np.zeros(2), 0.1, 0.2, 1e-3, controller="simple")
-    assert ebots.position_known(0.0).all()  # an eBot starts from its known place
+    assert ebots.position_known(0.0).all() and ebots.heading_known(0.0).all()  # an eBot starts from its known pose

@@ -29,7 +29,7 @@ from bob_autonomy.network.mesh import (
     packet_agent_id,
 )
 from bob_autonomy.onboard.vessel import VehicleError, Vessel, VesselConfig
-from firmware_bridge.readings import GpsFix, ImuReading
+from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
 
 # Real time, sockets and processes: in one xdist worker, so that they never compete with each other.
 pytestmark = pytest.mark.xdist_group("realtime")
@@ -145,7 +145,8 @@ def test_the_gps_lag_the_autopilot_compensates_is_the_one_the_vessel_dates_fixes
 
 def test_the_ground_station_hears_a_position_only_once_a_fix_set_it(stand_in: StandInVehicle) -> None:
     """Before its first fix the EKF estimates (0, 0), finite and no position: reported, a ground station would show
-    the vessel at the frame's origin. It reports nothing until a fix sets the estimate, then the fix's place."""
+    the vessel at the frame's origin. It reports nothing until a fix sets the estimate, then the fix's place; its
+    heading only once a compass reading set it (the vessel steps its agent only when both are known)."""
     vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
     vessel.pipeline.feed([ImuReading(np.array([0]), np.array([1.0]), np.zeros((1, 2)), np.zeros(1))])
     vessel._report_position(1.0)
@@ -155,6 +156,11 @@ def test_the_ground_station_hears_a_position_only_once_a_fix_set_it(stand_in: St
     vessel._report_position(1.1)
     assert vessel.gcs._position is not None
     assert vessel.gcs._position[:2] == pytest.approx((float(lat[0]), float(lon[0])), abs=1e-7)
+    assert vessel.gcs._position[4] is None  # no compass reading yet: the heading is unknown, not 0 (east)
+    assert vessel.pipeline.position_known(1.1).all() and not vessel.pipeline.heading_known(1.1).all()
+    vessel.pipeline.feed([CompassReading(np.array([0]), np.array([1.15]), np.array([1.2]))])
+    vessel._report_position(1.2)
+    assert vessel.gcs._position[4] == pytest.approx(1.2, abs=0.05)
     vessel.shutdown()
 
 

@@ -186,6 +186,12 @@ class BuoyPipeline:
         known = np.isfinite(self.estimate(t_s).position).all(axis=1)
         return known & self.estimator.pos_init if self.use_ekf else known
 
+    def heading_known(self, t_s: float) -> NDArray[np.bool_]:
+        """(n,) whether each estimate holds a heading: finite, and with the EKF set by a compass reading (before
+        one, the EKF says 0 rad: thrust turned into the body frame by it would push the wrong way)."""
+        known = np.isfinite(self.estimate(t_s).heading)
+        return known & self.estimator.heading_init if self.use_ekf else known
+
     def drift(self) -> FloatArray:
         """(n, 2) estimated water drift, m/s (zero without the EKF, which is the only one to estimate it)."""
         return self.estimator.drift() if self.use_ekf else np.zeros((self.n, 2))
@@ -341,6 +347,10 @@ class EbotPipeline:
     def position_known(self, t_s: float) -> NDArray[np.bool_]:
         """(n,) whether each estimate holds a position (an eBot's filter starts from its known place: finite)."""
         return np.isfinite(self.estimate(t_s).position).all(axis=1)
+
+    def heading_known(self, t_s: float) -> NDArray[np.bool_]:
+        """(n,) whether each estimate holds a heading (an eBot starts from its known heading: finite)."""
+        return np.isfinite(self.estimate(t_s).heading)
 
     def wheels(
         self, wish_mps: FloatArray, wish_heading_rad: FloatArray, t_s: float, *, idle: bool = False

@@ -284,7 +284,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._next_heartbeat_s = -math.inf
         self._last_reading_wall_s: float | None = None
         self._alarm = False
-        self.has_fix = False
+        self.pose_known = False
         self._obeying = True
         self._from_vehicle: list[bytes] = []  # the vehicle's frames waiting for the next ground-station write
         self._hold_heading = False
@@ -303,12 +303,13 @@ class Vessel(VesselLinks, AutopilotDriving):
 
     def _report_position(self, now: float) -> None:
         """The estimate to the ground station, once it holds a position (an EKF without a fix says (0, 0): a ground
-        station would show the vessel at the frame's origin); after a filter reset the last report stands."""
+        station would show the vessel at the frame's origin), its heading once a compass set it (else unknown);
+        after a filter reset the last report stands."""
         e = self.pipeline.estimate(now)
         if self.pipeline.position_known(now).all():
             lat, lon = self.frame.to_geodetic(e.position[0, 0], e.position[0, 1])
             vx, vy = e.velocity[0]
-            heading = float(e.heading[0]) if math.isfinite(e.heading[0]) else None
+            heading = float(e.heading[0]) if self.pipeline.heading_known(now).all() else None
             self.gcs.report_position(float(lat), float(lon), float(vx), float(vy), heading)
 
     def _check_estimate(self, now: float) -> None:
@@ -318,7 +319,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             return
         e = self.pipeline.estimate(now)
         self.pipeline.reset()
-        self.has_fix = False
+        self.pose_known = False
         self.stats.estimator_resets += 1
         text = (
             f"vessel {self.config.system_id}: position estimate diverged ({e.position[0, 0]:.3g}, "
@@ -445,10 +446,10 @@ class Vessel(VesselLinks, AutopilotDriving):
             self._send(self._override(np.zeros(2)))  # disarmed, or blind: neutral until that ends
             return
         start = time.perf_counter()
-        if not self.has_fix:
-            self.has_fix = bool(self.pipeline.position_known(now).all())
-            if not self.has_fix:
-                self._send(self._override(np.zeros(2)))  # waiting for a position: hold still
+        if not self.pose_known:
+            self.pose_known = bool(self.pipeline.position_known(now).all() and self.pipeline.heading_known(now).all())
+            if not self.pose_known:
+                self._send(self._override(np.zeros(2)))  # waiting for a position and a heading: hold still
                 return
         if not self._obeying:
             self._send(self._override(np.zeros(2)))  # not in our mode: neutral until it is again
@@ -482,7 +483,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         """True while a buoy or motorboat driving on a position has had no GPS fix for GPS_LOST_S (the autopilot's
         GPS failed, lost its satellites or its antenna; counted from the end of the start-up before the first fix);
         said when it begins and when fixes come back."""
-        if not isinstance(self.pipeline, BuoyPipeline) or not self.has_fix:
+        if not isinstance(self.pipeline, BuoyPipeline) or not self.pose_known:
             return False
         age = now - max(float(self.pipeline.last_fix_t[0]), self._driving_since)
         lost = age > GPS_LOST_S
@@ -517,7 +518,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             return  # asked to stop during the start-up: not back in service
         self._driving_since = self.clock.now()
         self._armed_seen = self.autopilot.armed
-        self.has_fix = False  # the estimator may have been rebuilt for what the autopilot now says
+        self.pose_known = False  # the estimator may have been rebuilt for what the autopilot now says
         text = f"vehicle {self.config.system_id} back in service after its autopilot restarted"
         self._say(mavlink.MAV_SEVERITY_NOTICE, text)
 
