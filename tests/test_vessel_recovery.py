@@ -363,6 +363,32 @@ def test_a_vessel_that_loses_its_gps_fixes_holds_at_neutral_until_they_come_back
     assert vessel.autopilot.fix_type == 3
 
 
+def test_a_vessel_without_a_heading_holds_still_and_says_what_it_lacks() -> None:
+    """An autopilot that sends no ATTITUDE: the EKF has a position but no heading (it would say 0 rad, east), and a
+    buoy turning its thrust into the body frame by it would push the wrong way. The vessel holds at neutral, says
+    after POSE_WAIT_S what it lacks, and drives once headings come."""
+    vehicle = StandInVehicle()
+    vehicle.no_attitude.set()
+    vehicle.start()
+    vessel = Vessel(replace(_config(0), vehicle=f"udpout:127.0.0.1:{vehicle.port}"), clock=ScaledWallClock(SCALE))
+    texts = _said(vessel)
+    runner = _run(vessel, 200.0)
+    try:
+        _wait(lambda: any("no compass heading" in t for t in texts), 20.0, "the missing heading went unsaid")
+        assert vehicle.vehicle.armed and not vessel.pose_known
+        assert not any("no GPS fix" in t for t in texts)
+        sent = [channels for _t, channels in list(vessel.autopilot.sent)[-5:]]
+        assert sent and all(abs(channels[3] - 1500) <= 1 and abs(channels[4] - 1500) <= 1 for channels in sent)
+        x = vehicle.position[0]
+        vehicle.no_attitude.clear()
+        _wait(lambda: vehicle.position[0] > x + 1.0, 10.0, "the vessel did not drive once headings came")
+    finally:
+        vessel.stop()
+        runner.join(10.0)
+        vehicle.close()
+    assert sum("position and heading known" in t for t in texts) == 1
+
+
 @pytest.mark.parametrize(("line", "expected"), [("", True), ("recover_after_reboot = false", False)])
 def test_recovery_after_a_reboot_is_a_setting_of_the_vessel_config_file(tmp_path, line: str, expected: bool) -> None:
     path = tmp_path / "vessel.toml"

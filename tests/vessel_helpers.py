@@ -39,6 +39,7 @@ class StandInVehicle(threading.Thread):
         self.muted = threading.Event()  # set: sends nothing
         self.deaf = threading.Event()  # set: hears nothing (a broken wire from the vessel), still sends
         self.no_fix = threading.Event()  # set: its GPS has no fix (GPS_RAW_INT fix type 1, no satellites)
+        self.no_attitude = threading.Event()  # set: it sends no ATTITUDE (no heading)
         self.applied: list[np.ndarray] = []
 
     def run(self) -> None:
@@ -72,7 +73,7 @@ class StandInVehicle(threading.Thread):
                     out += self.vehicle.telemetry.gps_raw_int(now, 0.0, 0.0, None, fix_type=1, satellites=0)
                 else:
                     out += self.vehicle.telemetry.gps_raw_int(now, float(lat), float(lon), velocity)
-            if now >= next_att:
+            if now >= next_att and not self.no_attitude.is_set():
                 next_att = now + 0.1
                 out += self.vehicle.telemetry.attitude(now, self.heading)
             if out:

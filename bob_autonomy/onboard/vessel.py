@@ -65,6 +65,7 @@ RESTART_RETRY_S = 10.0  # wall seconds between start-ups of a restarted autopilo
 # A buoy or motorboat that had a position and has had no GPS fix for this long (s) is held at neutral: its estimate
 # only drifts without fixes, and the autopilot, in MANUAL, would drive on whatever we send.
 GPS_LOST_S = 5.0
+POSE_WAIT_S = 5.0  # vessel-clock s after the start-up without a position or a heading before the vessel says so
 
 
 @dataclass(frozen=True)
@@ -297,6 +298,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._reboots_seen = 0
         self._restart_due: float | None = None  # wall clock (time.monotonic) of the next start-up after a reboot
         self._gps_lost = False
+        self._pose_wait_said = False  # said that the vessel holds still for want of a position or a heading
         self._driving_since = -math.inf  # clock s: when the (last) start-up ended; the first fix is due after it
 
     # -- link ------------------------------------------------------------------------------------------
@@ -333,6 +335,22 @@ class Vessel(VesselLinks, AutopilotDriving):
             self._send(heartbeat(encoder=self.autopilot.encoder))
 
     # -- start -----------------------------------------------------------------------------------------
+
+    def _say_pose_wait(self, now: float, position: bool, heading: bool) -> None:
+        """Say once when the vessel has held still for POSE_WAIT_S after its start-up for want of a GPS fix or a
+        compass heading (ATTITUDE) in its estimate, naming which, and say when it has both and drives."""
+        if position and heading:
+            if self._pose_wait_said:
+                self._say(mavlink.MAV_SEVERITY_NOTICE, f"vessel {self.config.system_id}: position and heading known")
+            self._pose_wait_said = False
+            return
+        waited = now - self._driving_since
+        if self._pose_wait_said or waited < POSE_WAIT_S:
+            return
+        wanted = [what for what, known in (("GPS fix", position), ("compass heading (ATTITUDE)", heading)) if not known]
+        text = f"vessel {self.config.system_id}: holding still, no {' and no '.join(wanted)} {waited:.0f} s after start"
+        self._say(mavlink.MAV_SEVERITY_WARNING, text)
+        self._pose_wait_said = True
 
     def _place_fixes(self, autopilot_lag_s: float | None) -> None:
         """Say how GPS fixes are timed: ArduPilot's stamp (the time it read the fix) on our clock, less the GPS's
@@ -447,7 +465,10 @@ class Vessel(VesselLinks, AutopilotDriving):
             return
         start = time.perf_counter()
         if not self.pose_known:
-            self.pose_known = bool(self.pipeline.position_known(now).all() and self.pipeline.heading_known(now).all())
+            position = bool(self.pipeline.position_known(now).all())
+            heading = bool(self.pipeline.heading_known(now).all())
+            self.pose_known = position and heading
+            self._say_pose_wait(now, position, heading)
             if not self.pose_known:
                 self._send(self._override(np.zeros(2)))  # waiting for a position and a heading: hold still
                 return
