@@ -215,10 +215,14 @@ LAT, LON = 1.3405, 103.9560
 
 
 def flat(readings) -> list:
-    """Readings as comparable values: type name and every field's numbers."""
+    """Readings as comparable values: type name and every field's numbers (NaN, a value not reported, as "nan")."""
+
+    def numbers(v) -> list:
+        return ["nan" if x != x else x for x in np.asarray(v, float).ravel().round(9).tolist()]
+
     out = []
     for r in readings:
-        values = {k: None if v is None else np.asarray(v, float).ravel().round(9).tolist() for k, v in vars(r).items()}
+        values = {k: None if v is None else numbers(v) for k, v in vars(r).items()}
         out.append((type(r).__name__, values))
     return out
 
