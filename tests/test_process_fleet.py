@@ -77,10 +77,22 @@ def _bindable(port: int) -> bool:
         sock.close()
 
 
+def _port_range() -> tuple[int, int]:
+    """Where this test process picks its ports: below the kernel's ephemeral range (32768 up, where sockets bound to
+    port 0 land), one half per pytest-xdist worker, so that a port found free here is not bound by a fleet of the
+    other worker before ours binds it (seen once in CI: "Address already in use")."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if worker.startswith("gw") and worker[2:].isdigit():
+        low = 20000 + 6000 * (int(worker[2:]) % 2)
+        return low, low + 6000
+    return 20000, 32000
+
+
 def free_ports(vehicles: int, extra: int = 0) -> tuple[int, list[int]]:
-    """A base port whose vehicle ports (base + 10 i) are free, and `extra` more free ports."""
+    """A base port whose vehicle ports (base + 10 i) are free, and `extra` more free ports (all in `_port_range`)."""
+    low, high = _port_range()
     for _ in range(200):
-        base = random.randrange(20000, 40000, 10)
+        base = random.randrange(low, high - 10 * vehicles - extra - 10, 10)
         others = [base + 10 * vehicles + 1 + k for k in range(extra)]
         if all(_bindable(vehicle_port(i, base)) for i in range(vehicles)) and all(map(_bindable, others)):
             return base, others
