@@ -297,19 +297,24 @@ def _attitude(records, agents, t_s, decoders, columns: Columns) -> list[object]:
     finite = np.isfinite(yaw)
     if finite.any():
         heading = np.pi - np.remainder(np.pi - (np.pi / 2.0 - yaw[finite]), 2.0 * np.pi)
-        placed = columns.add((CompassReading, (True, True, True)), agents=agents[finite], t_s=t_s[finite],
-                             heading_rad=heading)  # fmt: skip
+        r = records[finite]
+        rates = np.column_stack((r["rollspeed"], r["pitchspeed"], r["yawspeed"])).astype(np.float64)
+        placed = columns.add((CompassReading, (True,) * 6), agents=agents[finite], t_s=t_s[finite],
+                             heading_rad=heading, roll_rad=r["roll"].astype(np.float64),
+                             pitch_rad=r["pitch"].astype(np.float64), body_rates_frd_radps=rates)  # fmt: skip
         _place(rows, finite, placed)
     return rows
 
 
 def _imu(records, agents, t_s, decoders, columns: Columns) -> list[object]:
-    """TelemetryDecoder._imu: body acceleration (x forward, y left) m/s^2 from mG, yaw rate (CCW) from mrad/s."""
+    """TelemetryDecoder._imu: body acceleration (x forward, y left; z up) m/s^2 from mG, rates (yaw CCW) from
+    mrad/s."""
     g = STANDARD_GRAVITY_MPS2 / 1000.0
     accel = np.column_stack((records["xacc"] * g, -records["yacc"].astype(np.int64) * g))
     rate = -records["zgyro"].astype(np.int64) / 1000.0
-    return columns.add((ImuReading, (True, True, True, True)), agents=agents, t_s=t_s, accel_body_mps2=accel,
-                       gyro_z_radps=rate)  # fmt: skip
+    gyro_xy = np.column_stack((records["xgyro"] / 1000.0, -records["ygyro"].astype(np.int64) / 1000.0))
+    return columns.add((ImuReading, (True,) * 6), agents=agents, t_s=t_s, accel_body_mps2=accel, gyro_z_radps=rate,
+                       accel_z_mps2=-records["zacc"].astype(np.int64) * g, gyro_xy_radps=gyro_xy)  # fmt: skip
 
 
 _COLUMN_CONVERTERS = {

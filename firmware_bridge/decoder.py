@@ -463,14 +463,17 @@ class TelemetryDecoder:
         if not math.isfinite(msg.yaw):
             return None
         agents, times = self._rows(t_s)
-        return CompassReading(agents, times, np.array([heading_from_yaw(msg.yaw)]))
+        rates = np.array([[msg.rollspeed, msg.pitchspeed, msg.yawspeed]], dtype=np.float64)
+        return CompassReading(agents, times, np.array([heading_from_yaw(msg.yaw)]), np.array([float(msg.roll)]),
+                              np.array([float(msg.pitch)]), rates)  # fmt: skip
 
     def _imu(self, msg, t_s: float) -> ImuReading:
         # MAVLink body frame: x forward, y right, z down; ours: x forward, y left, yaw rate CCW (about up).
         g = STANDARD_GRAVITY_MPS2 / 1000.0
         agents, times = self._rows(t_s)
         accel = np.array([[msg.xacc * g, -msg.yacc * g]])
-        return ImuReading(agents, times, accel, np.array([-msg.zgyro / 1000.0]))
+        gyro_xy = np.array([[msg.xgyro / 1000.0, -msg.ygyro / 1000.0]])
+        return ImuReading(agents, times, accel, np.array([-msg.zgyro / 1000.0]), np.array([-msg.zacc * g]), gyro_xy)
 
     def _wheel_distance(self, msg, t_s: float) -> WheelDistance | None:
         if msg.count < 2:

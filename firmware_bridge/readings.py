@@ -35,22 +35,33 @@ class GpsFix:
 
 @dataclass(frozen=True, eq=False)
 class CompassReading:
-    """Compass headings: agent indices (k,), measurement times t_s (k,), heading_rad (k,) from east, CCW."""
+    """Compass headings: agent indices (k,), measurement times t_s (k,), heading_rad (k,) from east, CCW; from an
+    autopilot's ATTITUDE also the hull's tilt: roll_rad (k,) right side down, pitch_rad (k,) nose up, and
+    body_rates_frd_radps (k, 3), the body rates about x forward, y right, z down (rollspeed, pitchspeed,
+    yawspeed), all as ATTITUDE gives them (None when the source has none)."""
 
     agents: IntArray
     t_s: FloatArray
     heading_rad: FloatArray
+    roll_rad: FloatArray | None = None
+    pitch_rad: FloatArray | None = None
+    body_rates_frd_radps: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class ImuReading:
     """IMU readings: agent indices (k,), measurement times t_s (k,), accel_body_mps2 (k, 2) in the body
-    frame (x forward, y left), gyro_z_radps (k,) yaw rate (CCW positive)."""
+    frame (x forward, y left), gyro_z_radps (k,) yaw rate (CCW positive). From a MAVLink IMU message also the
+    rest of the body-frame reading (z up): accel_z_mps2 (k,) (+9.8 on a level hull at rest) and gyro_xy_radps
+    (k, 2) about x and y, so that a tilted hull's reading can be levelled (`bob_autonomy.estimation.tilt`); None
+    when the source is level by construction (the simulator's sensors)."""
 
     agents: IntArray
     t_s: FloatArray
     accel_body_mps2: FloatArray
     gyro_z_radps: FloatArray
+    accel_z_mps2: FloatArray | None = None
+    gyro_xy_radps: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)

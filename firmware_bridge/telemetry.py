@@ -55,6 +55,20 @@ def _int16(value: float) -> int:
     return -INT16_MAX if v < -INT16_MAX else INT16_MAX if v > INT16_MAX else int(v)
 
 
+def _imu_fields(
+    accel_body_mps2: Sequence[float], gyro_z_radps: float, accel_z_mps2: float | None, gyro_xy_radps: Sequence[float]
+) -> list[int]:
+    """SCALED_IMU's and RAW_IMU's accelerometer (mG), gyro (mrad/s) and magnetometer (0) fields, FRD, from our
+    x forward, y left, z up; a z specific force of None is 1 g exactly (-1000 mG)."""
+    to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
+    z = -1000 if accel_z_mps2 is None else _int16(-accel_z_mps2 * to_mg)
+    return [
+        _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), z,
+        _int16(gyro_xy_radps[0] * 1000.0), _int16(-gyro_xy_radps[1] * 1000.0), _int16(-gyro_z_radps * 1000.0),
+        0, 0, 0,
+    ]  # fmt: skip
+
+
 class TelemetryEncoder:
     """One vehicle's telemetry frames, sent as (system_id, component 1: the autopilot). Times t_s are on the
     caller's clock, s; the frames carry the vehicle's time since boot, t_s - boot_s (the decoder stamps readings at
@@ -191,43 +205,57 @@ class TelemetryEncoder:
             named, ms, b"light_r", float(right)
         )
 
-    def attitude(self, t_s: float, heading_rad: float, yaw_rate_radps: float = 0.0) -> bytes:
-        """ATTITUDE, level: yaw from our heading, yawspeed clockwise-positive (rad/s)."""
+    def attitude(
+        self,
+        t_s: float,
+        heading_rad: float,
+        yaw_rate_radps: float = 0.0,
+        *,
+        roll_rad: float = 0.0,
+        pitch_rad: float = 0.0,
+        roll_pitch_rates_radps: Sequence[float] = (0.0, 0.0),
+    ) -> bytes:
+        """ATTITUDE: yaw from our heading, yawspeed clockwise-positive (rad/s); level unless given roll (right side
+        down), pitch (nose up) and the body rates about x forward and y right (rollspeed, pitchspeed), rad, rad/s."""
         return self.encoder.frame(
             mavlink.MAVLink_attitude_message,
             self._ms(t_s),
-            0.0,
-            0.0,
+            float(roll_rad),
+            float(pitch_rad),
             yaw_from_heading(heading_rad),
-            0.0,
-            0.0,
+            float(roll_pitch_rates_radps[0]),
+            float(roll_pitch_rates_radps[1]),
             -float(yaw_rate_radps),
         )
 
-    def scaled_imu(self, t_s: float, accel_body_mps2: Sequence[float], gyro_z_radps: float) -> bytes:
-        """SCALED_IMU (mG, mrad/s, FRD body frame) from our level IMU (x forward, y left; yaw rate CCW)."""
-        to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
+    def scaled_imu(
+        self,
+        t_s: float,
+        accel_body_mps2: Sequence[float],
+        gyro_z_radps: float,
+        *,
+        accel_z_mps2: float | None = None,
+        gyro_xy_radps: Sequence[float] = (0.0, 0.0),
+    ) -> bytes:
+        """SCALED_IMU (mG, mrad/s, FRD body frame) from our IMU (x forward, y left, z up; yaw rate CCW): a level
+        hull's unless given the z specific force (None: 1 g) and the rates about x and y."""
         return self.encoder.frame(
-            mavlink.MAVLink_scaled_imu_message,
-            self._ms(t_s),
-            _int16(accel_body_mps2[0] * to_mg),
-            _int16(-accel_body_mps2[1] * to_mg),
-            -1000,  # 1 g down (z down)
-            0,
-            0,
-            _int16(-gyro_z_radps * 1000.0),
-            0,
-            0,
-            0,
-        )
-
-    def raw_imu(self, t_s: float, accel_body_mps2: Sequence[float], gyro_z_radps: float) -> bytes:
-        """RAW_IMU as ArduPilot fills it (GCS_Common.cpp send_raw_imu: mG and mrad/s, FRD), from our level IMU."""
-        to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
-        return self.encoder.frame(mavlink.MAVLink_raw_imu_message,
-            self._usec(t_s), _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), -1000,
-            0, 0, _int16(-gyro_z_radps * 1000.0), 0, 0, 0, 0, 0,
+            mavlink.MAVLink_scaled_imu_message, self._ms(t_s), *_imu_fields(accel_body_mps2, gyro_z_radps,
+                                                                              accel_z_mps2, gyro_xy_radps)
         )  # fmt: skip
+
+    def raw_imu(
+        self,
+        t_s: float,
+        accel_body_mps2: Sequence[float],
+        gyro_z_radps: float,
+        *,
+        accel_z_mps2: float | None = None,
+        gyro_xy_radps: Sequence[float] = (0.0, 0.0),
+    ) -> bytes:
+        """RAW_IMU as ArduPilot fills it (GCS_Common.cpp send_raw_imu: mG and mrad/s, FRD), as `scaled_imu`."""
+        fields = _imu_fields(accel_body_mps2, gyro_z_radps, accel_z_mps2, gyro_xy_radps)
+        return self.encoder.frame(mavlink.MAVLink_raw_imu_message, self._usec(t_s), *fields, 0, 0)
 
     def wheel_distance(self, t_s: float, distance_m: Sequence[float], count: int = 2) -> bytes:
         """WHEEL_DISTANCE with `count` wheels (left, right), cumulative metres."""

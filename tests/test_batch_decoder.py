@@ -42,11 +42,15 @@ def _random_telemetry(rng: np.random.Generator, encoder: TelemetryEncoder, count
             lat, lon = (0.0, 0.0) if special else (rng.uniform(-89, 89), rng.uniform(-179, 179))
             out += encoder.global_position_int(t, lat, lon, tuple(rng.normal(0, 200, 2)), rng.uniform(-4, 4))
         elif kind == 2:
-            out += encoder.attitude(t, math.nan if special else float(rng.uniform(-10, 10)))
+            # roll, pitch and their rates from the time (no draw: the stream stays), NaN now and then
+            tilt = {"roll_rad": math.nan if t % 7 < 0.5 else math.sin(t), "pitch_rad": math.cos(3 * t) / 2,
+                    "roll_pitch_rates_radps": (t % 1.3 - 0.6, t % 0.7 - 0.3)}  # fmt: skip
+            out += encoder.attitude(t, math.nan if special else float(rng.uniform(-10, 10)), **tilt)
         elif kind in (3, 4):
             accel = rng.normal(0, 400 if special else 2, 2)
             imu = encoder.scaled_imu if kind == 3 else encoder.raw_imu
-            out += imu(t, accel, float(rng.normal(0, 40 if special else 1)))
+            z, xy = 9.0 + (t % 2.0) if t % 5 > 1 else 600.0, (t % 1.1 - 0.5, t % 0.9 - 0.4)
+            out += imu(t, accel, float(rng.normal(0, 40 if special else 1)), accel_z_mps2=z, gyro_xy_radps=xy)
         elif kind == 5:
             out += encoder.heartbeat(int(rng.integers(20)), bool(rng.integers(2)), int(rng.integers(16)))
         elif kind == 6:

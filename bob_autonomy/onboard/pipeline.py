@@ -28,6 +28,7 @@ from bob_autonomy.core.arrays import wrap
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
 from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
+from bob_autonomy.estimation.tilt import TiltTracker
 from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
@@ -113,6 +114,7 @@ class BuoyPipeline:
         self.last_fix_xy = np.full((n, 2), np.nan)  # the newest GPS fix of each vessel (local frame, m) and its time
         self.last_fix_t = np.full(n, -np.inf)
         self.resets = 0
+        self.tilt = TiltTracker(n)  # the hulls' roll and pitch (ATTITUDE), to level their IMU readings
 
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
         if not self.use_ekf:
@@ -153,8 +155,9 @@ class BuoyPipeline:
         return sum(m.fallbacks for m in self.mpcs)
 
     def feed(self, readings: SensorReadings | Iterable[object]) -> None:
-        """Fuse readings (any order; each carries its measurement time and vessel rows)."""
-        for reading in _flatten(readings):
+        """Fuse readings (any order; each carries its measurement time and vessel rows). IMU readings are levelled
+        with the hulls' attitude (`bob_autonomy.estimation.tilt`) from the compass readings that carry one."""
+        for reading in self._levelled(_flatten(readings)):
             if isinstance(reading, ImuReading):
                 if self.use_ekf:  # the accelerometer drives the prediction; the known thrust makes drift observable
                     a = reading.agents
@@ -176,6 +179,14 @@ class BuoyPipeline:
                 _update_compass(self.estimator, reading, self.use_ekf)
             else:
                 self.ignored += 1
+
+    def _levelled(self, batch: list[object]) -> list[object]:
+        """The batch with its IMU readings levelled, after noting the attitude of each compass reading in it (an
+        attitude is carried to the IMU reading's time, before or after it: `TiltTracker`)."""
+        for reading in batch:
+            if isinstance(reading, CompassReading):
+                self.tilt.note(reading)
+        return [self.tilt.level(r) if isinstance(r, ImuReading) else r for r in batch]
 
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
@@ -341,6 +352,14 @@ class EbotPipeline:
         times[late] = filter_t[late]
         return times, xy
 
+    def _levelled(self, batch: list[object]) -> list[object]:
+        """The batch with its IMU readings levelled, after noting the attitude of each compass reading in it (an
+        attitude is carried to the IMU reading's time, before or after it: `TiltTracker`)."""
+        for reading in batch:
+            if isinstance(reading, CompassReading):
+                self.tilt.note(reading)
+        return [self.tilt.level(r) if isinstance(r, ImuReading) else r for r in batch]
+
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
 
@@ -395,8 +414,9 @@ class MotorboatPipeline(BuoyPipeline):
     balance is isotropic, so its sigma is widened to `drag_balance_sigma_mps2` for the sway it does not know).
     use_accelerometer: False (default): the EKF predicts with that model and the thrust, not the accelerometer. A
     hull that pitches and rolls in waves puts gravity into a planar accelerometer (0.17 m/s^2 per degree;
-    ArduPilot's SITL motorboat has waves on, Tools/autotest/default_params/motorboat.parm SIM_WAVE_ENABLE 1),
-    which the buoy EKF would integrate into metres-per-second velocity errors; GPS velocity at 10 Hz does better.
+    ArduPilot's SITL motorboat has waves on, Tools/autotest/default_params/motorboat.parm SIM_WAVE_ENABLE 1).
+    The readings are levelled with ATTITUDE's roll and pitch (`bob_autonomy.estimation.tilt`), the gyro too, but
+    the accelerometer stays out by default: GPS velocity at 10 Hz does well enough without it.
     The controller is `bob_autonomy.control.motorboat_control`. Commands are (throttle, steering) per boat, each in
     [-1, 1], as `AutopilotSession.override` sends them. `thrust()` returns these commands too, so that the vessel
     loop drives every pipeline that estimates like a buoy alike.
@@ -484,7 +504,7 @@ class MotorboatPipeline(BuoyPipeline):
         if self.use_accelerometer or not self.use_ekf:
             super().feed(readings)
             return
-        for reading in _flatten(readings):  # in time order: nothing fused by replay that need not be
+        for reading in self._levelled(_flatten(readings)):  # in time order: nothing fused by replay that need not be
             if isinstance(reading, ImuReading):
                 a = reading.agents
                 self.estimator.predict(a, reading.t_s, None, self.thrust_world_n[a])
