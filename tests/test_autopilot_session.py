@@ -91,6 +91,20 @@ def test_the_gps_lag_from_gps1_delay_ms_or_its_older_name() -> None:
     assert AutopilotProfile({"GPS1_DELAY_MS": 5000}).gps_lag_s == 1.0  # MAX_GPS_LAG_S
 
 
+def test_the_gps_antenna_offset_is_gps1_pos_less_ins_pos1_as_ardupilots_ekf_takes_it() -> None:
+    mast = {"GPS1_POS_X": 0.5, "GPS1_POS_Y": 0.0, "GPS1_POS_Z": -1.5, "INS_POS1_X": 0.1, "INS_POS1_Z": 0.25}
+    assert AutopilotProfile(mast).gps_antenna_m == pytest.approx((0.4, 0.0, -1.75))
+    older = {"GPS_POS1_X": 0.2, "GPS_POS1_Y": -0.1, "GPS_POS1_Z": 0.0}  # before ArduPilot 4.6
+    assert AutopilotProfile(older).gps_antenna_m == pytest.approx((0.2, -0.1, 0.0))
+    level = {f"GPS1_POS_{a}": 0.0 for a in "XYZ"}
+    for none in ({}, level, {"GPS1_POS_X": 1.0}, {**level, "GPS1_POS_Z": math.nan}):  # unread, zero, partial, NaN
+        assert AutopilotProfile(none).gps_antenna_m is None
+    far = AutopilotProfile({**level, "GPS1_POS_Z": -25.0})  # centimetres typed as metres, say
+    assert far.gps_antenna_m is None
+    assert any("GPS1_POS_X/Y/Z or INS_POS1_X/Y/Z is over 5 m" in w for w in far.warnings(0.1))
+    assert not any("GPS1_POS" in w for w in AutopilotProfile(mast).warnings(0.1))
+
+
 def test_gcs_id_top_speed_and_rc_map_from_parameters() -> None:
     p = AutopilotProfile(
         {

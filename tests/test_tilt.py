@@ -1,6 +1,7 @@
-"""An IMU on a rolling, pitching hull levelled with the autopilot's attitude (bob_autonomy.estimation.tilt):
-the geometry against scipy's rotations, the tracker's bookkeeping, MAVLink bytes through both decoders, and a
-buoy's EKF on a rolling sea against truth."""
+"""A rolling, pitching hull: its IMU levelled with the autopilot's attitude (bob_autonomy.estimation.tilt) and its
+GPS fixes moved from the antenna to the IMU (bob_autonomy.estimation.antenna): the geometry against scipy's
+rotations, the tracker's bookkeeping, MAVLink bytes through both decoders, and a buoy's EKF on a rolling sea
+against truth."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
 from bob_autonomy.core.geodesy import LocalFrame
+from bob_autonomy.estimation.antenna import antenna_offsets
 from bob_autonomy.estimation.tilt import TiltTracker, euler_rates, level_imu
 from bob_autonomy.onboard.pipeline import BuoyPipeline
 from firmware_bridge.batch_decoder import decode_batch
@@ -51,8 +53,8 @@ def test_levelling_recovers_the_hulls_horizontal_acceleration_at_any_attitude(se
 
 @pytest.mark.parametrize("seed", range(5))
 def test_yaw_rate_and_the_rates_of_roll_and_pitch_follow_from_the_body_rates(seed: int) -> None:
-    """Body rates taken from two scipy rotations 1 ms apart (R^T dR/dt); the yaw rate from `level_imu` and the
-    roll and pitch rates from `euler_rates` match the Euler angles' own differences."""
+    """Body rates taken from two scipy rotations 2 us apart (R^T dR/dt); the yaw rate from `level_imu` and the
+    rates of roll, pitch and heading from `euler_rates` match the Euler angles' own differences."""
     rng = np.random.default_rng(seed)
     k, h = 200, 1e-6
     angles = np.column_stack((rng.uniform(-3, 3, k), rng.uniform(-1.0, 1.0, k), rng.uniform(-1.0, 1.0, k)))
@@ -64,7 +66,7 @@ def test_yaw_rate_and_the_rates_of_roll_and_pitch_follow_from_the_body_rates(see
     gyro_flu = body_frd * np.array([1.0, -1.0, -1.0])
     _, yaw_rate = level_imu(np.zeros((k, 3)), gyro_flu, roll, pitch)
     np.testing.assert_allclose(yaw_rate, -rates[:, 0], atol=1e-6)  # counter-clockwise: minus NED's yaw rate
-    np.testing.assert_allclose(euler_rates(roll, pitch, body_frd), rates[:, [2, 1]], atol=1e-6)
+    np.testing.assert_allclose(euler_rates(roll, pitch, body_frd), rates[:, [2, 1, 0]] * [1, 1, -1], atol=1e-6)
 
 
 def _imu(rows, t, accel_flu, gyro_flu) -> ImuReading:
@@ -139,10 +141,13 @@ def test_attitude_and_the_whole_imu_come_through_both_decoders_from_pymavlink_fr
 ORIGIN = LocalFrame(1.3405, 103.956)
 
 
-def _rolling_sea_readings(seed: int, duration_s: float, *, attitude: bool) -> list[list[object]]:
+def _rolling_sea_readings(
+    seed: int, duration_s: float, *, attitude: bool, antenna_frd_m=(0.0, 0.0, 0.0), gps_sigma=(2.0, 0.1)
+) -> list[list[object]]:
     """A buoy held still (no thrust, still water) while waves roll it up to 9 deg and pitch it up to 7 deg (periods
     5.3 and 7.1 s); per 0.04 s: its IMU (25 Hz; 0.03 m/s^2 and 0.002 rad/s noise), its ATTITUDE every 0.1 s
-    (0.3 deg noise, heading 30 deg; with the tilt only when `attitude`), its GPS every 0.2 s (2 m, 0.1 m/s)."""
+    (0.3 deg noise, heading 30 deg; with the tilt only when `attitude`), its GPS every 0.2 s (gps_sigma: m, m/s)
+    from an antenna at antenna_frd_m (x forward, y right, z down) from the IMU."""
     rng = np.random.default_rng(seed)
     phase = rng.uniform(0, 2 * np.pi, 2)
     yaw = math.radians(60.0)  # NED: heading 30 deg from east, counter-clockwise
@@ -167,21 +172,27 @@ def _rolling_sea_readings(seed: int, duration_s: float, *, attitude: bool) -> li
             tilt = (np.array([roll + noisy[0]]), np.array([pitch + noisy[1]]), body) if attitude else (None,) * 3
             batch.append(CompassReading(np.array([0]), np.array([t]), heading, *tilt))
         if i % 5 == 2:
-            x, y = rng.normal(0.0, 2.0, 2)
+            rotation = _rotation(np.array([yaw]), np.array([pitch]), np.array([roll]))
+            antenna = rotation.apply(np.atleast_2d(antenna_frd_m))[0]  # north, east, down
+            swing = rotation.apply(np.cross(body, np.atleast_2d(antenna_frd_m)))[0]
+            x, y = antenna[1] + rng.normal(0.0, gps_sigma[0]), antenna[0] + rng.normal(0.0, gps_sigma[0])
             lat, lon = ORIGIN.to_geodetic(x, y)
-            fix = GpsFix(
-                np.array([0]), np.array([t]), np.atleast_1d(lat), np.atleast_1d(lon), rng.normal(0, 0.1, (1, 2))
-            )
-            batch.append(fix)
+            velocity = np.array([[swing[1], swing[0]]]) + rng.normal(0, gps_sigma[1], (1, 2))
+            batch.append(GpsFix(np.array([0]), np.array([t]), np.atleast_1d(lat), np.atleast_1d(lon), velocity))
         batches.append(batch)
     return batches
 
 
-def _velocity_rms(seed: int, attitude: bool) -> tuple[float, float]:
-    """RMS speed (m/s) and distance (m) of the EKF's estimate from the still truth after the first 10 s of 40."""
+def _velocity_rms(seed: int, attitude: bool, antenna=None, told=False, gps_sigma=(2.0, 0.1)) -> tuple[float, float]:
+    """RMS speed (m/s) and distance (m) of the EKF's estimate from the still truth after the first 10 s of 40: the
+    antenna at `antenna` (FRD m; None: at the IMU), the pipeline `told` where it is or not."""
     pipeline = BuoyPipeline(1, ORIGIN, np.array([45.0]), estimator="ekf", controller="simple")
+    if told:
+        pipeline.antenna_frd_m[:] = antenna
     speeds, distances = [], []
-    for i, batch in enumerate(_rolling_sea_readings(seed, 40.0, attitude=attitude)):
+    where = (0.0, 0.0, 0.0) if antenna is None else antenna
+    readings = _rolling_sea_readings(seed, 40.0, attitude=attitude, antenna_frd_m=where, gps_sigma=gps_sigma)
+    for i, batch in enumerate(readings):
         pipeline.feed(batch)
         t = 0.04 * (i + 1)
         if t > 10.0:
@@ -200,3 +211,33 @@ def test_a_buoy_rolling_in_waves_keeps_a_still_estimate_once_its_imu_is_levelled
     print(f"seed {seed}: levelled {speed:.3f} m/s {distance:.2f} m; not {speed_flat:.3f} m/s {distance_flat:.2f} m")
     assert speed < 0.08 and distance < 1.5
     assert speed_flat > 3 * speed
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_antenna_offsets_are_scipys_rotation_of_the_lever_arm_and_its_swing(seed: int) -> None:
+    """Where an antenna at r (FRD) is and how fast it moves about the IMU, R r and R (w x r), against scipy's
+    rotation of the same attitude (heading from east, counter-clockwise, as ours)."""
+    rng = np.random.default_rng(seed)
+    k = 300
+    attitude = np.column_stack((rng.uniform(-1, 1, k), rng.uniform(-1, 1, k), rng.uniform(-np.pi, np.pi, k)))
+    rates, arm = rng.normal(0, 1, (k, 3)), rng.normal(0, 2, (k, 3))
+    rotation = _rotation(np.pi / 2 - attitude[:, 2], attitude[:, 1], attitude[:, 0])
+    where, swing = antenna_offsets(attitude, rates, arm)
+    np.testing.assert_allclose(where, rotation.apply(arm)[:, [1, 0]], atol=1e-12)
+    np.testing.assert_allclose(swing, rotation.apply(np.cross(rates, arm))[:, [1, 0]], atol=1e-12)
+
+
+MAST = (0.3, 0.0, -1.5)  # an antenna 1.5 m up a mast, 0.3 m forward of the IMU
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_buoy_with_its_antenna_up_a_mast_keeps_a_still_estimate_once_its_fixes_are_moved_to_the_imu(seed) -> None:
+    """The rolling buoy's antenna 1.5 m up a mast and 0.3 m forward swings about 0.25 m and 0.27 m/s; with a good
+    receiver (0.3 m, 0.05 m/s) the EKF told where the antenna is keeps still (seeds 0-4: 0.026-0.037 m/s and
+    0.07-0.11 m RMS), one not told follows the swing and sits at the antenna (0.068-0.075 m/s, 0.33-0.38 m)."""
+    good = (0.3, 0.05)
+    speed, distance = _velocity_rms(seed, True, MAST, told=True, gps_sigma=good)
+    speed_not, distance_not = _velocity_rms(seed, True, MAST, told=False, gps_sigma=good)
+    print(f"seed {seed}: told {speed:.3f} m/s {distance:.3f} m; not {speed_not:.3f} m/s {distance_not:.3f} m")
+    assert speed < 0.05 and distance < 0.2
+    assert speed_not > 1.5 * speed and distance_not > 3 * distance

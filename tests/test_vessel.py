@@ -143,6 +143,17 @@ def test_the_gps_lag_the_autopilot_compensates_is_the_one_the_vessel_dates_fixes
     assert vessel.vehicle.decoder.gps_lag_s == 0.05
 
 
+def test_the_vessel_moves_its_fixes_to_the_imu_by_the_antenna_offset_the_autopilot_has(stand_in) -> None:
+    """GPS1_POS (the antenna 1.5 m up, 0.5 m forward) less INS_POS1 (the IMU 0.1 m forward): read at start, the
+    pipeline's antenna offset, as ArduPilot's EKF takes it; on a level hull the vessel still drives."""
+    for name, value in (("GPS1_POS_X", 0.5), ("GPS1_POS_Z", -1.5), ("INS_POS1_X", 0.1)):
+        assert stand_in.vehicle.params.set(name, value)
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    stats = vessel.run(duration_s=6.0)
+    assert vessel.pipeline.antenna_frd_m[0] == pytest.approx([0.4, 0.0, -1.5])
+    assert stats.commands > 10 and vessel.pipeline.antenna_unplaced <= 2
+
+
 def test_the_ground_station_hears_a_position_only_once_a_fix_set_it(stand_in: StandInVehicle) -> None:
     """Before its first fix the EKF estimates (0, 0), finite and no position: reported, a ground station would show
     the vessel at the frame's origin. It reports nothing until a fix sets the estimate, then the fix's place; its

@@ -52,11 +52,12 @@ def level_imu(
 
 
 def euler_rates(roll_rad: FloatArray, pitch_rad: FloatArray, body_rates_frd_radps: FloatArray) -> FloatArray:
-    """(k, 2) rates of roll and pitch, rad/s, from the body rates p, q, r (k, 3) (FRD, as ATTITUDE's rollspeed,
-    pitchspeed, yawspeed) at roll and pitch (k,) rad."""
+    """(k, 3) rates of roll, pitch and heading (counter-clockwise), rad/s, from the body rates p, q, r (k, 3) (FRD,
+    as ATTITUDE's rollspeed, pitchspeed, yawspeed) at roll and pitch (k,) rad."""
     p, q, r = body_rates_frd_radps[:, 0], body_rates_frd_radps[:, 1], body_rates_frd_radps[:, 2]
     sr, cr = np.sin(roll_rad), np.cos(roll_rad)
-    return np.column_stack((p + (q * sr + r * cr) * np.tan(pitch_rad), q * cr - r * sr))
+    yaw = q * sr + r * cr
+    return np.column_stack((p + yaw * np.tan(pitch_rad), q * cr - r * sr, -yaw / np.cos(pitch_rad)))
 
 
 class TiltTracker:
@@ -71,7 +72,10 @@ class TiltTracker:
         self.max_age_s = max_age_s
         self.t_s = np.full(n, np.nan)
         self.roll_pitch = np.zeros((n, 2))
-        self.rates = np.zeros((n, 2))
+        self.rates = np.zeros((n, 2))  # of roll and pitch, rad/s
+        self.heading = np.zeros(n)  # rad from east, counter-clockwise, and its rate (rad/s): for `attitude_at`
+        self.heading_rate = np.zeros(n)
+        self.body_rates = np.zeros((n, 3))  # FRD, as ATTITUDE gives them
         self.levelled = 0
         self.unlevelled = 0
 
@@ -83,16 +87,31 @@ class TiltTracker:
         rates = euler_rates(roll, pitch, body)
         rows, t = reading.agents, reading.t_s
         good = np.isfinite(roll) & np.isfinite(pitch) & np.all(np.isfinite(rates), axis=1) & np.isfinite(t)
+        good &= np.isfinite(reading.heading_rad) & np.all(np.isfinite(body), axis=1)
         take = np.flatnonzero(good & ~(t < self.t_s[rows]))  # newer than the one held, or none held (NaN)
         if len(np.unique(rows[take])) < len(take):  # a row twice: in order, so that its latest reading wins
+            winner: dict[int, int] = {}
             for j in take:
-                row = rows[j]
-                if not t[j] < self.t_s[row]:
-                    self.t_s[row], self.roll_pitch[row], self.rates[row] = t[j], (roll[j], pitch[j]), rates[j]
-            return
-        self.t_s[rows[take]] = t[take]
-        self.roll_pitch[rows[take]] = np.column_stack((roll[take], pitch[take]))
-        self.rates[rows[take]] = rates[take]
+                if rows[j] not in winner or not t[j] < t[winner[rows[j]]]:
+                    winner[rows[j]] = j
+            take = np.array(sorted(winner.values()), dtype=np.intp)
+        at = rows[take]
+        self.t_s[at] = t[take]
+        self.roll_pitch[at] = np.column_stack((roll[take], pitch[take]))
+        self.rates[at] = rates[take, :2]
+        self.heading[at] = reading.heading_rad[take]
+        self.heading_rate[at] = rates[take, 2]
+        self.body_rates[at] = body[take]
+
+    def attitude_at(self, rows: NDArray[np.intp], t_s: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(attitude (k, 3): roll, pitch, heading rad, carried to times t_s (k,) s with their rates; known (k,)):
+        known where an attitude is held within max_age_s of the time."""
+        age = t_s - self.t_s[rows]
+        known = np.abs(age) <= self.max_age_s
+        age = np.where(known, age, 0.0)
+        angles = np.column_stack((self.roll_pitch[rows], self.heading[rows]))
+        rates = np.column_stack((self.rates[rows], self.heading_rate[rows]))
+        return angles + rates * age[:, None], known
 
     def level(self, reading: ImuReading) -> ImuReading:
         """The reading with its accelerometer and yaw rate levelled where it carries the full IMU and an attitude
@@ -108,7 +127,7 @@ class TiltTracker:
         if not tilted.any():
             return reading
         k = np.flatnonzero(tilted)
-        angles = self.roll_pitch[rows[k]] + self.rates[rows[k]] * age[k, None]
+        angles = self.roll_pitch[rows[k]] + self.rates[rows[k]] * age[k, None]  # carried to the IMU's time
         accel3 = np.column_stack((reading.accel_body_mps2[k], reading.accel_z_mps2[k]))
         gyro3 = np.column_stack((reading.gyro_xy_radps[k], reading.gyro_z_radps[k]))
         accel, yaw_rate = level_imu(accel3, gyro3, angles[:, 0], angles[:, 1])

@@ -79,11 +79,15 @@ CORE_PARAMS = (
     "MOT_SLEWRATE",
     "GPS1_DELAY_MS",
     "GPS_DELAY_MS",  # GPS1_DELAY_MS before ArduPilot 4.6
+    *(f"GPS1_POS_{axis}" for axis in "XYZ"),
+    *(f"GPS_POS1_{axis}" for axis in "XYZ"),  # GPS1_POS_* before ArduPilot 4.6
+    *(f"INS_POS1_{axis}" for axis in "XYZ"),
     *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
 # Names of CORE_PARAMS that only older firmware has (the newer name is read too): ArduPilot ignores a request for
 # a name it does not know, so these go unanswered by a current one.
-LEGACY_PARAMS = frozenset({"SYSID_MYGCS", "GPS_DELAY_MS"})
+LEGACY_PARAMS = frozenset({"SYSID_MYGCS", "GPS_DELAY_MS", "GPS_POS1_X", "GPS_POS1_Y", "GPS_POS1_Z"})
+MAX_ANTENNA_OFFSET_M = 10.0  # an antenna offset larger than this is taken for a bad parameter and not used
 DEFAULT_THROTTLE_SLEW_PER_S = 1.0  # MOT_SLEWRATE's default, 100 %/s (libraries/AR_Motors/AP_MotorsUGV.cpp)
 SKID_STEER_FUNCTIONS = (73, 74)  # SERVOn_FUNCTION throttle left / right (libraries/SRV_Channel/SRV_Channel.h)
 MANUAL_SPEED_SCALING = 1  # MANUAL_OPTIONS bit 0: steering scaled down with speed (Rover/Parameters.cpp)
@@ -265,6 +269,23 @@ class AutopilotProfile:
         return None
 
     @property
+    def gps_antenna_m(self) -> tuple[float, float, float] | None:
+        """Where the GPS antenna is from the IMU, m, x forward, y right, z down: GPS1_POS_X/Y/Z (GPS_POS1_* before
+        ArduPilot 4.6) less INS_POS1_X/Y/Z, as ArduPilot's EKF3 takes it (AP_NavEKF3_PosVelFusion.cpp
+        CorrectGPSForAntennaOffset). None when not read or all zero."""
+        for prefix in ("GPS1_POS_", "GPS_POS1_"):
+            antenna = [self.values.get(prefix + axis) for axis in "XYZ"]
+            if all(v is not None for v in antenna):
+                break
+        else:
+            return None
+        imu = [self.values.get(f"INS_POS1_{axis}", 0.0) for axis in "XYZ"]
+        offset = tuple(float(a) - float(b) for a, b in zip(antenna, imu, strict=True))
+        if not all(math.isfinite(v) and abs(v) <= MAX_ANTENNA_OFFSET_M for v in offset) or not any(offset):
+            return None
+        return offset
+
+    @property
     def turn_radius_m(self) -> float | None:
         """TURN_RADIUS, m: the turning radius the autopilot is configured with (None when not read or not > 0)."""
         value = self.values.get("TURN_RADIUS")
@@ -329,6 +350,13 @@ class AutopilotProfile:
             )
         elif 0 < timeout < 3 * control_period_s:
             found.append(f"RC_OVERRIDE_TIME {timeout:g} s is under three control periods; overrides may lapse")
+        far = [self.values.get(f"{p}{a}") for p in ("GPS1_POS_", "GPS_POS1_", "INS_POS1_") for a in "XYZ"]
+        if any(v is not None and not abs(v) <= MAX_ANTENNA_OFFSET_M / 2 for v in far):
+            found.append(
+                f"GPS1_POS_X/Y/Z or INS_POS1_X/Y/Z is over {MAX_ANTENNA_OFFSET_M / 2:g} m or not a number: an antenna "
+                f"offset over {MAX_ANTENNA_OFFSET_M:g} m is not used; set them in metres from the hull's reference "
+                "point (x forward, y right, z down)"
+            )
         if _int(self.values, "FS_GCS_ENABLE", 0) == 0 and self.known:
             found.append(
                 f"FS_GCS_ENABLE is 0: if this computer dies the vehicle stops only when RC overrides lapse after "

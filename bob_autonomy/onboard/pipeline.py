@@ -27,6 +27,7 @@ from bob_autonomy.control.velocity_control import BuoyModel, BuoyVelocityControl
 from bob_autonomy.core.arrays import wrap
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
+from bob_autonomy.estimation.antenna import antenna_offsets
 from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
 from bob_autonomy.estimation.tilt import TiltTracker
 from firmware_bridge.decoder import WheelDistance
@@ -114,7 +115,11 @@ class BuoyPipeline:
         self.last_fix_xy = np.full((n, 2), np.nan)  # the newest GPS fix of each vessel (local frame, m) and its time
         self.last_fix_t = np.full(n, -np.inf)
         self.resets = 0
-        self.tilt = TiltTracker(n)  # the hulls' roll and pitch (ATTITUDE), to level their IMU readings
+        self.tilt = TiltTracker(n)  # the hulls' attitude (ATTITUDE), to level their IMU readings
+        # Each GPS antenna's offset from the hull's reference point (the IMU), m, x forward, y right, z down
+        # (ArduPilot's GPS1_POS_X/Y/Z less INS_POS1_X/Y/Z); fixes are moved back to the reference point by it.
+        self.antenna_frd_m = np.zeros((n, 3))
+        self.antenna_unplaced = 0  # fixes from an offset antenna that came with no attitude to place them by
 
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
         if not self.use_ekf:
@@ -165,20 +170,40 @@ class BuoyPipeline:
                     self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
             elif isinstance(reading, GpsFix):
                 x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
-                xy = np.column_stack((x, y))
+                xy, velocity = self._at_reference_point(reading, np.column_stack((x, y)))
                 self.last_fix_xy[reading.agents] = xy
                 self.last_fix_t[reading.agents] = reading.t_s
                 if self.use_ekf:
                     self.estimator.update_gps(
-                        reading.agents, reading.t_s, xy, reading.velocity_mps, reading.accuracy_m,
-                        reading.speed_accuracy_mps,
-                    )  # fmt: skip
+                        reading.agents, reading.t_s, xy, velocity, reading.accuracy_m, reading.speed_accuracy_mps
+                    )
                 else:
-                    self.estimator.update_gps(reading.agents, reading.t_s, xy, reading.velocity_mps)
+                    self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity)
             elif isinstance(reading, CompassReading):
                 _update_compass(self.estimator, reading, self.use_ekf)
             else:
                 self.ignored += 1
+
+    def _at_reference_point(self, fix: GpsFix, xy: FloatArray) -> tuple[FloatArray, FloatArray | None]:
+        """A fix's positions (k, 2) m and velocities moved from the antenna to the hull's reference point, where
+        `antenna_frd_m` is set, with the attitude at the fix's time (`bob_autonomy.estimation.antenna`)."""
+        rows, velocity = fix.agents, fix.velocity_mps
+        offset = self.antenna_frd_m[rows]
+        if not offset.any():
+            return xy, velocity
+        attitude, known = self.tilt.attitude_at(rows, fix.t_s)
+        placed = known & offset.any(axis=1)
+        self.antenna_unplaced += int(np.count_nonzero(~known & offset.any(axis=1)))
+        if not placed.any():
+            return xy, velocity
+        k = np.flatnonzero(placed)
+        moved, moving = antenna_offsets(attitude[k], self.tilt.body_rates[rows[k]], offset[k])
+        xy = xy.copy()
+        xy[k] -= moved
+        if velocity is not None:
+            velocity = velocity.copy()
+            velocity[k] -= moving
+        return xy, velocity
 
     def _levelled(self, batch: list[object]) -> list[object]:
         """The batch with its IMU readings levelled, after noting the attitude of each compass reading in it (an
@@ -351,6 +376,27 @@ class EbotPipeline:
         xy[late] += self.fix_velocity[agents[late]] * (filter_t[late] - times[late])[:, None]
         times[late] = filter_t[late]
         return times, xy
+
+    def _at_reference_point(self, fix: GpsFix, xy: FloatArray) -> tuple[FloatArray, FloatArray | None]:
+        """A fix's positions (k, 2) m and velocities moved from the antenna to the hull's reference point, where
+        `antenna_frd_m` is set, with the attitude at the fix's time (`bob_autonomy.estimation.antenna`)."""
+        rows, velocity = fix.agents, fix.velocity_mps
+        offset = self.antenna_frd_m[rows]
+        if not offset.any():
+            return xy, velocity
+        attitude, known = self.tilt.attitude_at(rows, fix.t_s)
+        placed = known & offset.any(axis=1)
+        self.antenna_unplaced += int(np.count_nonzero(~known & offset.any(axis=1)))
+        if not placed.any():
+            return xy, velocity
+        k = np.flatnonzero(placed)
+        moved, moving = antenna_offsets(attitude[k], self.tilt.body_rates[rows[k]], offset[k])
+        xy = xy.copy()
+        xy[k] -= moved
+        if velocity is not None:
+            velocity = velocity.copy()
+            velocity[k] -= moving
+        return xy, velocity
 
     def _levelled(self, batch: list[object]) -> list[object]:
         """The batch with its IMU readings levelled, after noting the attitude of each compass reading in it (an

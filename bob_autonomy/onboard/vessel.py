@@ -425,7 +425,16 @@ class Vessel(VesselLinks, AutopilotDriving):
                 logger.info("wheel control: throttle slew %.0f %%/s", 100 * slew)
         if c.kind == BUOY and profile.lateral_capable:
             self._hold_heading = True
+        self._place_antenna(profile.gps_antenna_m)
         logger.info("vehicle %d in service: %s", c.system_id, profile.frame_name)
+
+    def _place_antenna(self, antenna_m: tuple[float, float, float] | None) -> None:
+        """Fixes moved from the GPS antenna to the IMU (buoys, motorboats) by the offset the autopilot's EKF uses."""
+        if antenna_m is None or not isinstance(self.pipeline, BuoyPipeline):
+            return
+        self.pipeline.antenna_frd_m[:] = antenna_m
+        logger.info("GPS antenna %.2f m forward, %.2f m right, %.2f m down of the IMU (GPS1_POS less INS_POS1): "
+                    "fixes are moved to the IMU with the attitude", *antenna_m)  # fmt: skip
 
     # -- the loop --------------------------------------------------------------------------------------
 

@@ -133,6 +133,12 @@ def rover_parameter_table(kind: str, system_id: int, gcs_system_id: int = 255) -
         ParamSpec("MOT_SLEWRATE", 100, INT16, 0, 1000, "libraries/AR_Motors/AP_MotorsUGV.cpp"),
         # the GPS lag the autopilot compensates (0: its GPS type's default); a vessel places fixes with it
         ParamSpec("GPS1_DELAY_MS", 0, INT16, 0, 250, "libraries/AP_GPS/AP_GPS_Params.cpp"),
+        # where the GPS antenna and the IMU are on the hull (m, FRD); the simulated GPS is at the IMU
+        *(ParamSpec(f"GPS1_POS_{a}", 0.0, REAL32, -5, 5, "libraries/AP_GPS/AP_GPS_Params.cpp") for a in "XYZ"),
+        *(
+            ParamSpec(f"INS_POS1_{a}", 0.0, REAL32, -5, 5, "libraries/AP_InertialSensor/AP_InertialSensor.cpp")
+            for a in "XYZ"
+        ),
         ParamSpec("MOT_THR_MAX", 100, INT8, 30, 100, "libraries/AR_Motors/AP_MotorsUGV.cpp"),
         ParamSpec("WENC_TYPE", 0, INT8, 0, 10, "libraries/AP_WheelEncoder/AP_WheelEncoder.cpp"),
         ParamSpec("WENC2_TYPE", 0, INT8, 0, 10, "libraries/AP_WheelEncoder/AP_WheelEncoder.cpp"),
