@@ -377,35 +377,6 @@ class EbotPipeline:
         times[late] = filter_t[late]
         return times, xy
 
-    def _at_reference_point(self, fix: GpsFix, xy: FloatArray) -> tuple[FloatArray, FloatArray | None]:
-        """A fix's positions (k, 2) m and velocities moved from the antenna to the hull's reference point, where
-        `antenna_frd_m` is set, with the attitude at the fix's time (`bob_autonomy.estimation.antenna`)."""
-        rows, velocity = fix.agents, fix.velocity_mps
-        offset = self.antenna_frd_m[rows]
-        if not offset.any():
-            return xy, velocity
-        attitude, known = self.tilt.attitude_at(rows, fix.t_s)
-        placed = known & offset.any(axis=1)
-        self.antenna_unplaced += int(np.count_nonzero(~known & offset.any(axis=1)))
-        if not placed.any():
-            return xy, velocity
-        k = np.flatnonzero(placed)
-        moved, moving = antenna_offsets(attitude[k], self.tilt.body_rates[rows[k]], offset[k])
-        xy = xy.copy()
-        xy[k] -= moved
-        if velocity is not None:
-            velocity = velocity.copy()
-            velocity[k] -= moving
-        return xy, velocity
-
-    def _levelled(self, batch: list[object]) -> list[object]:
-        """The batch with its IMU readings levelled, after noting the attitude of each compass reading in it (an
-        attitude is carried to the IMU reading's time, before or after it: `TiltTracker`)."""
-        for reading in batch:
-            if isinstance(reading, CompassReading):
-                self.tilt.note(reading)
-        return [self.tilt.level(r) if isinstance(r, ImuReading) else r for r in batch]
-
     def estimate(self, t_s: float) -> PoseEstimate:
         return self.estimator.estimate(t_s)
 
