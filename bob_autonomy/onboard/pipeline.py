@@ -28,6 +28,7 @@ from bob_autonomy.core.arrays import wrap
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation import BuoyEkfBank, BuoyEkfParams, EbotEkfBank
 from bob_autonomy.estimation.antenna import antenna_offsets
+from bob_autonomy.estimation.gps_accuracy import AccuracyEnvelope
 from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
 from bob_autonomy.estimation.tilt import TiltTracker
 from firmware_bridge.decoder import WheelDistance
@@ -120,6 +121,7 @@ class BuoyPipeline:
         # (ArduPilot's GPS1_POS_X/Y/Z less INS_POS1_X/Y/Z); fixes are moved back to the reference point by it.
         self.antenna_frd_m = np.zeros((n, 3))
         self.antenna_unplaced = 0  # fixes from an offset antenna that came with no attitude to place them by
+        self.gps_accuracy = AccuracyEnvelope(n)  # the receivers' reported accuracies, held and let decay (EKF3)
 
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
         if not self.use_ekf:
@@ -174,9 +176,10 @@ class BuoyPipeline:
                 self.last_fix_xy[reading.agents] = xy
                 self.last_fix_t[reading.agents] = reading.t_s
                 if self.use_ekf:
-                    self.estimator.update_gps(
-                        reading.agents, reading.t_s, xy, velocity, reading.accuracy_m, reading.speed_accuracy_mps
+                    accuracy = self.gps_accuracy.apply(
+                        reading.agents, reading.t_s, reading.accuracy_m, reading.speed_accuracy_mps
                     )
+                    self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity, *accuracy)
                 else:
                     self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity)
             elif isinstance(reading, CompassReading):
