@@ -69,36 +69,36 @@ ORIGIN = LocalFrame(1.3405, 103.956)
 
 
 def _multipath_error(seed: int, envelope: bool) -> float:
-    """Largest distance (m) of a still buoy's EKF estimate from truth from t = 19 s on: fixes of 0.5 m noise,
-    reported 1 m, except from 20 to 23 s when they are 8 m off (multipath), the receiver reporting 10 m only for
+    """Largest distance (m) of a still buoy's EKF estimate from truth from t = 11 s on: fixes of 0.5 m noise,
+    reported 1 m, except from 12 to 15 s when they are 8 m off (multipath), the receiver reporting 10 m only for
     the first 0.5 s of it."""
     rng = np.random.default_rng(seed)
     pipeline = BuoyPipeline(1, ORIGIN, np.array([45.0]), estimator="ekf", controller="simple")
     if not envelope:
         pipeline.gps_accuracy.apply = lambda rows, t, accuracy, speed: (accuracy, speed)
     worst = 0.0
-    for i in range(1000):
+    for i in range(500):
         t = 0.04 * (i + 1)
         one, at = np.array([0]), np.array([t])
         batch: list[object] = [ImuReading(one, at, rng.normal(0, 0.03, (1, 2)), rng.normal(0, 0.002, 1))]
         if i % 5 == 4:
             batch.append(CompassReading(one, at, np.array([0.5 + rng.normal(0, 0.005)])))
         if i % 5 == 2:
-            x, y = rng.normal(0, 0.5, 2) + np.array([0.0, 8.0 if 20.0 <= t < 23.0 else 0.0])
+            x, y = rng.normal(0, 0.5, 2) + np.array([0.0, 8.0 if 12.0 <= t < 15.0 else 0.0])
             lat, lon = ORIGIN.to_geodetic(x, y)
-            accuracy = np.array([10.0 if 20.0 <= t < 20.5 else 1.0])
+            accuracy = np.array([10.0 if 12.0 <= t < 12.5 else 1.0])
             velocity = rng.normal(0, 0.05, (1, 2))
             batch.append(GpsFix(one, at, np.atleast_1d(lat), np.atleast_1d(lon), velocity, accuracy, np.array([0.1])))
         pipeline.feed(batch)
-        if t > 19.0:
+        if t > 11.0:
             worst = max(worst, float(np.hypot(*pipeline.estimate(t).position[0])))
     return worst
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_a_receiver_that_claims_to_be_good_again_too_soon_pulls_the_estimate_less(seed: int) -> None:
-    """Seeds 0-4 (2026-11-28): with the envelope the estimate strays at most 0.15-0.25 m; weighing each fix by its
-    own report, 0.9-1.3 m."""
+    """Seeds 0-4 (2026-11-28): with the envelope the estimate strays at most 0.12-0.31 m; weighing each fix by its
+    own report, 1.4-1.7 m."""
     held, each = _multipath_error(seed, True), _multipath_error(seed, False)
     print(f"seed {seed}: largest error {held:.2f} m with the envelope, {each:.2f} m without")
-    assert held < 0.4 and each > 2.5 * held
+    assert held < 0.5 and each > 3 * held

@@ -184,14 +184,14 @@ def _rolling_sea_readings(
 
 
 def _velocity_rms(seed: int, attitude: bool, antenna=None, told=False, gps_sigma=(2.0, 0.1)) -> tuple[float, float]:
-    """RMS speed (m/s) and distance (m) of the EKF's estimate from the still truth after the first 10 s of 40: the
+    """RMS speed (m/s) and distance (m) of the EKF's estimate from the still truth after the first 10 s of 28: the
     antenna at `antenna` (FRD m; None: at the IMU), the pipeline `told` where it is or not."""
     pipeline = BuoyPipeline(1, ORIGIN, np.array([45.0]), estimator="ekf", controller="simple")
     if told:
         pipeline.antenna_frd_m[:] = antenna
     speeds, distances = [], []
     where = (0.0, 0.0, 0.0) if antenna is None else antenna
-    readings = _rolling_sea_readings(seed, 40.0, attitude=attitude, antenna_frd_m=where, gps_sigma=gps_sigma)
+    readings = _rolling_sea_readings(seed, 28.0, attitude=attitude, antenna_frd_m=where, gps_sigma=gps_sigma)
     for i, batch in enumerate(readings):
         pipeline.feed(batch)
         t = 0.04 * (i + 1)
@@ -233,11 +233,11 @@ MAST = (0.3, 0.0, -1.5)  # an antenna 1.5 m up a mast, 0.3 m forward of the IMU
 @pytest.mark.parametrize("seed", range(5))
 def test_a_buoy_with_its_antenna_up_a_mast_keeps_a_still_estimate_once_its_fixes_are_moved_to_the_imu(seed) -> None:
     """The rolling buoy's antenna 1.5 m up a mast and 0.3 m forward swings about 0.25 m and 0.27 m/s; with a good
-    receiver (0.3 m, 0.05 m/s) the EKF told where the antenna is keeps still (seeds 0-4: 0.026-0.037 m/s and
-    0.07-0.11 m RMS), one not told follows the swing and sits at the antenna (0.068-0.075 m/s, 0.33-0.38 m)."""
+    receiver (0.3 m, 0.05 m/s) the EKF told where the antenna is keeps still (seeds 0-4: 0.025-0.031 m/s and
+    0.06-0.09 m RMS), one not told follows the swing and sits at the antenna (0.070-0.077 m/s, 0.33-0.41 m)."""
     good = (0.3, 0.05)
     speed, distance = _velocity_rms(seed, True, MAST, told=True, gps_sigma=good)
     speed_not, distance_not = _velocity_rms(seed, True, MAST, told=False, gps_sigma=good)
     print(f"seed {seed}: told {speed:.3f} m/s {distance:.3f} m; not {speed_not:.3f} m/s {distance_not:.3f} m")
     assert speed < 0.05 and distance < 0.2
-    assert speed_not > 1.5 * speed and distance_not > 3 * distance
+    assert speed_not > 1.5 * speed and distance_not > 2.5 * distance

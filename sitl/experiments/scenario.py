@@ -35,6 +35,7 @@ from sitl.radio.channel import RadioChannel
 from sitl.radio.mesh_security import MeshSecuritySpec
 from sitl.vehicles.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec
 from sitl.world.environment import CurrentSpec, Environment, WindSpec
+from sitl.world.waves import WaveSpec
 
 MAX_COORDINATE_M = 1e7  # |x|, |y| of any position: 10,000 km, beyond any local frame (and far from overflow)
 MAX_POLYGON_VERTICES = 1000
@@ -317,26 +318,30 @@ class EnvironmentSpec(Model):
     """Wind and current (physics fidelity): parameters of sitl.world.environment.WindSpec and CurrentSpec.
 
     wind: speed_mps, toward_deg (direction it blows towards, deg from east CCW),
-    gust_intensity, gust_time_constant_s. current: speed_mps, toward_deg, grid.
+    gust_intensity, gust_time_constant_s. current: speed_mps, toward_deg, grid. waves (sitl.world.waves.WaveSpec):
+    tilt_deg (0: flat water), period_s, length_m, toward_deg; they roll and pitch buoys and motorboats, whose IMU
+    and ATTITUDE then carry the tilt.
     """
 
     wind: dict[str, float] = {}
     current: dict[str, Any] = {}
+    waves: dict[str, float] = {}
 
     @model_validator(mode="after")
     def _buildable(self) -> EnvironmentSpec:
         self.specs()
         return self
 
-    def specs(self) -> tuple[WindSpec, CurrentSpec]:
+    def specs(self) -> tuple[WindSpec, CurrentSpec, WaveSpec]:
         return (
             build_dataclass(WindSpec, self.wind, "wind parameter(s)"),
             build_dataclass(CurrentSpec, self.current, "current parameter(s)"),
+            build_dataclass(WaveSpec, self.waves, "waves parameter(s)"),
         )
 
     def build(self, rng: np.random.Generator) -> Environment:
-        wind, current = self.specs()
-        return Environment(wind, current, rng)
+        wind, current, waves = self.specs()
+        return Environment(wind, current, rng, waves)
 
 
 SENSOR_SPECS = {

@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bob_autonomy.core.geodesy import LocalFrame
+from firmware_bridge.decoder import STANDARD_GRAVITY_MPS2
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
 FloatArray = NDArray[np.float64]
@@ -141,10 +142,11 @@ class CompassSpec:
     noise_deg: float = 2.0
     bias_std_deg: float = 1.0
     latency_s: float = 0.0
+    tilt_noise_deg: float = 0.2  # the roll and pitch an autopilot reports with it, when waves tilt the hull
 
     def __post_init__(self) -> None:
         _check_rate_latency(self)
-        _check_nonnegative(self, "noise_deg", "bias_std_deg")
+        _check_nonnegative(self, "noise_deg", "bias_std_deg", "tilt_noise_deg")
 
 
 @dataclass(frozen=True)
@@ -232,6 +234,24 @@ def world_to_body(vectors: FloatArray, heading_rad: FloatArray) -> FloatArray:
     """(k, 2) world-frame vectors (east, north) into the body frame (x forward along heading, y left)."""
     c, s = np.cos(heading_rad), np.sin(heading_rad)
     return np.column_stack((c * vectors[:, 0] + s * vectors[:, 1], -s * vectors[:, 0] + c * vectors[:, 1]))
+
+
+def tilted_imu(
+    level_accel_mps2: FloatArray, roll_rad: FloatArray, pitch_rad: FloatArray, body_rates_frd_radps: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """(specific force (k, 3) m/s^2, body rates (k, 3) rad/s), x forward, y left, z up, that an IMU on a hull tilted
+    by roll and pitch (k,) rad reads when the hull accelerates at level_accel (k, 2) (forward, left in the level
+    frame that yaws with it): f = R^T (a - g) with R = Ry(pitch) Rx(roll), in FRD, then flipped to ours."""
+    down = np.full(len(roll_rad), -STANDARD_GRAVITY_MPS2)  # a - g, g = +9.8 m/s^2 down
+    a = np.column_stack((level_accel_mps2[:, 0], -level_accel_mps2[:, 1], down))
+    sr, cr, sp, cp = np.sin(roll_rad), np.cos(roll_rad), np.sin(pitch_rad), np.cos(pitch_rad)
+    # R^T = Rx^T Ry^T: first undo the pitch, then the roll
+    x = cp * a[:, 0] - sp * a[:, 2]
+    z1 = sp * a[:, 0] + cp * a[:, 2]
+    y = cr * a[:, 1] + sr * z1
+    z = -sr * a[:, 1] + cr * z1
+    flip = np.array([1.0, -1.0, -1.0])
+    return np.column_stack((x, y, z)) * flip, body_rates_frd_radps * flip
 
 
 def encoder_ticks(wheel_travel_m: ArrayLike, spec: EncoderSpec) -> NDArray[np.int64]:
@@ -352,12 +372,17 @@ class SensorSuite:
         heading_rad: ArrayLike,
         yaw_rate_radps: ArrayLike,
         wheel_travel_m: ArrayLike | None = None,
+        *,
+        tilt: tuple[FloatArray, FloatArray, FloatArray] | None = None,
     ) -> SensorReadings:
         """Measure the truth at t_s (s) where a sensor's schedule says so, and return what is delivered at t_s.
 
         Truth, all world frame: position_m (N, 2), velocity_mps (N, 2), accel_mps2
         (N, 2), heading_rad (N,), yaw_rate_radps (N,), and wheel_travel_m (N, 2)
         cumulative (left, right) travel of each wheel (m) or None (no encoder readings).
+        tilt: (roll (N,) rad right side down, pitch (N,) rad nose up, body rates (N, 3) rad/s FRD) of hulls
+        rolled by waves (sitl.world.waves), or None for level hulls: the IMU then reads all three axes of a tilted
+        body (gravity in x and y) and the compass reading carries the attitude, as an autopilot's ATTITUDE does.
         Call once per simulator step with non-decreasing t_s.
         """
         t = float(t_s)
@@ -374,9 +399,9 @@ class SensorSuite:
         if self._gps is not None:
             self._measure_gps(t, position, velocity)
         if self._compass is not None:
-            self._measure_compass(t, heading)
+            self._measure_compass(t, heading, tilt)
         if self._imu is not None:
-            self._measure_imu(t, accel, heading, yaw_rate)
+            self._measure_imu(t, accel, heading, yaw_rate, tilt)
         encoders = None
         if self.encoders is not None and wheel_travel_m is not None:
             encoders = self._measure_encoders(t, self._truth(wheel_travel_m, "wheel_travel_m", (n, 2)))
@@ -446,7 +471,7 @@ class SensorSuite:
         self._common_error_t_s = t
         return self._common_error_m
 
-    def _measure_compass(self, t: float, heading: FloatArray) -> None:
+    def _measure_compass(self, t: float, heading: FloatArray, tilt: tuple | None = None) -> None:
         spec = self.compass
         assert spec is not None and self._compass is not None
         agents = self._finite(self._compass.due(t), heading)
@@ -454,9 +479,19 @@ class SensorSuite:
             return
         noise = np.radians(spec.noise_deg) * self.rng.standard_normal(agents.size)
         measured = wrap_angle(heading[agents] + self.compass_bias_rad[agents] + noise)
-        self._compass.push(t, CompassReading(agents, np.full(agents.size, t), measured))
+        times = np.full(agents.size, t)
+        if tilt is None:
+            self._compass.push(t, CompassReading(agents, times, measured))
+            return
+        # an autopilot's attitude: roll and pitch to a tenth of a degree or so, its gyro's rates
+        roll, pitch, body = tilt
+        error = np.radians(spec.tilt_noise_deg) * self.rng.standard_normal((agents.size, 2))
+        self._compass.push(t, CompassReading(agents, times, measured, roll[agents] + error[:, 0],
+                                             pitch[agents] + error[:, 1], body[agents].copy()))  # fmt: skip
 
-    def _measure_imu(self, t: float, accel: FloatArray, heading: FloatArray, yaw_rate: FloatArray) -> None:
+    def _measure_imu(
+        self, t: float, accel: FloatArray, heading: FloatArray, yaw_rate: FloatArray, tilt: tuple | None = None
+    ) -> None:
         spec = self.imu
         assert spec is not None and self._imu is not None
         agents = self._finite(self._imu.due(t), accel, heading, yaw_rate)
@@ -464,9 +499,18 @@ class SensorSuite:
             return
         k = agents.size
         body = world_to_body(accel[agents], heading[agents])
+        rate = yaw_rate[agents]
+        if tilt is not None:  # the tilted body's specific force and rates (x forward, y left, z up)
+            force, rates = tilted_imu(body, tilt[0][agents], tilt[1][agents], tilt[2][agents])
+            body, rate = force[:, :2], rates[:, 2]
         body += self.accel_bias_mps2[agents] + spec.accel_noise_mps2 * self.rng.standard_normal((k, 2))
-        gyro = yaw_rate[agents] + self.gyro_bias_radps[agents] + spec.gyro_noise_radps * self.rng.standard_normal(k)
-        self._imu.push(t, ImuReading(agents, np.full(k, t), body, gyro))
+        gyro = rate + self.gyro_bias_radps[agents] + spec.gyro_noise_radps * self.rng.standard_normal(k)
+        if tilt is None:
+            self._imu.push(t, ImuReading(agents, np.full(k, t), body, gyro))
+            return
+        z = force[:, 2] + spec.accel_noise_mps2 * self.rng.standard_normal(k)
+        gyro_xy = rates[:, :2] + spec.gyro_noise_radps * self.rng.standard_normal((k, 2))
+        self._imu.push(t, ImuReading(agents, np.full(k, t), body, gyro, z, gyro_xy))
 
     def _measure_encoders(self, t: float, travel: FloatArray) -> EncoderReading | None:
         assert self.encoders is not None

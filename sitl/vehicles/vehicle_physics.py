@@ -40,6 +40,7 @@ from sitl.vehicles.sensors import (
     noisy_ranges,
 )
 from sitl.world.environment import Environment
+from sitl.world.waves import hull_tilt
 from sitl.world.world import FloatArray, World
 
 PRE_ROLL_S = 2.0  # sensors and estimators run this long before t = 0, as a vessel powered up before the mission
@@ -211,8 +212,9 @@ class VehiclePhysics:
         if self.buoy is not None:
             d = self.buoy
             out["buoy"] = self.buoy_sensors.sample(
-                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps
-            )
+                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps,
+                tilt=self._tilt(d),
+            )  # fmt: skip
         if self.ebot is not None:
             d = self.ebot
             out["ebot"] = self.ebot_sensors.sample(
@@ -227,9 +229,17 @@ class VehiclePhysics:
         if self.motorboat is not None and self.motorboat_sensors is not None:
             d = self.motorboat
             out["motorboat"] = self.motorboat_sensors.sample(
-                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps
-            )
+                self.t, d.position_m, d.velocity_mps, d.acceleration_mps2, d.heading_rad, d.yaw_rate_radps,
+                tilt=self._tilt(d),
+            )  # fmt: skip
         return out
+
+    def _tilt(self, hulls) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """The roll, pitch and body rates the waves give floating hulls now (None on flat water)."""
+        waves = self.environment.waves
+        if not waves.on:
+            return None
+        return hull_tilt(waves, self.t, hulls.position_m, hulls.heading_rad, hulls.yaw_rate_radps)
 
     def ebot_senses(self, world: World) -> tuple[FloatArray, FloatArray]:
         """The eBots' noisy sonar ranges (n_ebots, 6) m (NaN: no echo) and light readings (n_ebots, 2) W/m^2,

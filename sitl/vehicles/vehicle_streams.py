@@ -22,8 +22,9 @@ class TelemetryStreams:
 
     def observe(self, kind: str, t_s: float, *values) -> None:
         """Take the latest reading of one sensor: "gps" (lat, lon deg, velocity (east, north) or None), "compass"
-        (heading rad), "imu" (accel body (x, y) m/s^2, yaw rate rad/s), "wheels" (distances (l, r) m), "ranges"
-        (distances m, max range m), "light" (left, right)."""
+        (heading rad; on a tilted hull also roll, pitch rad and body rates (p, q, r) rad/s FRD), "imu" (accel body
+        (x, y) m/s^2, yaw rate rad/s; on a tilted hull also z m/s^2 and the (x, y) rates), "wheels" (distances
+        (l, r) m), "ranges" (distances m, max range m), "light" (left, right)."""
         setattr(self, f"_{kind}", (t_s, *values))
         if kind == "gps":
             self._last_fix_s = t_s
@@ -115,19 +116,35 @@ class TelemetryStreams:
         return self.telemetry.vfr_hud(speed, heading, 100.0 * self._throttle)
 
     def _build_attitude(self) -> bytes:
-        return self.telemetry.attitude(self._t, self._compass[1]) if self._compass else b""
+        """ATTITUDE from the latest compass reading: level, or the tilted hull's roll, pitch and rates."""
+        if not self._compass:
+            return b""
+        if len(self._compass) == 2:  # a level hull
+            return self.telemetry.attitude(self._t, self._compass[1])
+        _, heading, roll, pitch, (p, q, r) = self._compass
+        return self.telemetry.attitude(
+            self._t, heading, -r, roll_rad=roll, pitch_rad=pitch, roll_pitch_rates_radps=(p, q)
+        )
+
+    def _imu_fields(self) -> tuple[tuple, dict]:
+        """The latest IMU reading as the telemetry encoder takes it: (accel, gyro) and, on a tilted hull, the z
+        specific force and the x, y rates."""
+        if len(self._imu) == 3:
+            return self._imu[1:], {}
+        _, accel, gyro, z, gyro_xy = self._imu
+        return (accel, gyro), {"accel_z_mps2": z, "gyro_xy_radps": gyro_xy}
 
     def _build_raw_imu(self) -> bytes:
         if not self._imu:
             return b""
-        _, accel, gyro = self._imu
-        return self.telemetry.raw_imu(self._t, accel, gyro)
+        args, extra = self._imu_fields()
+        return self.telemetry.raw_imu(self._t, *args, **extra)
 
     def _build_scaled_imu(self) -> bytes:
         if not self._imu:
             return b""
-        _, accel, gyro = self._imu
-        return self.telemetry.scaled_imu(self._t, accel, gyro)
+        args, extra = self._imu_fields()
+        return self.telemetry.scaled_imu(self._t, *args, **extra)
 
     def _build_wheel_distance(self) -> bytes:
         if not self._wheels or not self._encoders():

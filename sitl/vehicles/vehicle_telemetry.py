@@ -40,14 +40,21 @@ def encode_readings(
 
     if readings.imu is not None:
         r = readings.imu
+        tilted = r.accel_z_mps2 is not None and r.gyro_xy_radps is not None
         for i, row in vehicle_rows(r.agents):
-            vehicles[row].observe("imu", t_s, tuple(r.accel_body_mps2[i].tolist()), float(r.gyro_z_radps[i]))
+            extra = (float(r.accel_z_mps2[i]), tuple(r.gyro_xy_radps[i].tolist())) if tilted else ()
+            vehicles[row].observe("imu", t_s, tuple(r.accel_body_mps2[i].tolist()), float(r.gyro_z_radps[i]), *extra)
             if direct(row):
-                frames[row] += vehicles[row].telemetry.scaled_imu(t_s, r.accel_body_mps2[i], r.gyro_z_radps[i])
+                more = {"accel_z_mps2": extra[0], "gyro_xy_radps": extra[1]} if tilted else {}
+                frames[row] += vehicles[row].telemetry.scaled_imu(t_s, r.accel_body_mps2[i], r.gyro_z_radps[i], **more)
     if readings.compass is not None:
         c = readings.compass
+        tilted = c.roll_rad is not None and c.pitch_rad is not None and c.body_rates_frd_radps is not None
         for i, row in vehicle_rows(c.agents):
-            vehicles[row].observe("compass", t_s, float(c.heading_rad[i]))
+            extra = ()
+            if tilted:
+                extra = (float(c.roll_rad[i]), float(c.pitch_rad[i]), tuple(c.body_rates_frd_radps[i].tolist()))
+            vehicles[row].observe("compass", t_s, float(c.heading_rad[i]), *extra)
     if readings.gps is not None:
         g = readings.gps
         for i, row in vehicle_rows(g.agents):
@@ -63,9 +70,15 @@ def encode_readings(
                     )
     if readings.compass is not None:
         c = readings.compass
+        tilted = c.roll_rad is not None and c.pitch_rad is not None and c.body_rates_frd_radps is not None
         for i, row in vehicle_rows(c.agents):
             if direct(row):
-                frames[row] += vehicles[row].telemetry.attitude(t_s, c.heading_rad[i])
+                more = {}
+                if tilted:
+                    p, q, r = c.body_rates_frd_radps[i].tolist()
+                    more = {"roll_rad": c.roll_rad[i], "pitch_rad": c.pitch_rad[i], "roll_pitch_rates_radps": (p, q)}
+                    more["yaw_rate_radps"] = -r
+                frames[row] += vehicles[row].telemetry.attitude(t_s, c.heading_rad[i], **more)
     if readings.encoders is not None:
         e = readings.encoders
         for i, row in vehicle_rows(e.agents):

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from sitl.world.waves import WaveSpec
+
 FloatArray = NDArray[np.float64]
 
 
@@ -160,16 +162,19 @@ class CurrentSpec:
 
 
 class Environment:
-    """Wind (mean + gust process) and current, sampled at agent positions.
+    """Wind (mean + gust process) and current, sampled at agent positions; the waves that tilt the hulls.
 
     wind: WindSpec; current: CurrentSpec; rng: numpy Generator, the only
     source of randomness (the gust process starts from its stationary
     distribution, drawn here, and draws two normals per step).
     """
 
-    def __init__(self, wind: WindSpec, current: CurrentSpec, rng: np.random.Generator) -> None:
+    def __init__(
+        self, wind: WindSpec, current: CurrentSpec, rng: np.random.Generator, waves: WaveSpec | None = None
+    ) -> None:
         self.wind = wind
         self.current = current
+        self.waves = WaveSpec() if waves is None else waves  # swell that tilts the hulls (sitl.world.waves)
         self.rng = rng
         self.time_s = 0.0
         self._mean_wind = wind.mean_mps
