@@ -5,12 +5,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
 from bob_autonomy.estimation import tilt
-from firmware_bridge.decoder import STANDARD_GRAVITY_MPS2
+from firmware_bridge.autopilot_requests import set_message_interval
+from firmware_bridge.commands import Encoder
+from firmware_bridge.decoder import STANDARD_GRAVITY_MPS2, TelemetryDecoder
+from firmware_bridge.readings import CompassReading, ImuReading, SensorReadings
 from sitl.experiments.scenario import Scenario, ScenarioError, load_scenario
 from sitl.fleets.fleet import LockstepFleet
+from sitl.vehicles.mavlink_vehicle import BUOY, SimulatedVehicle, encode_readings, prepend_streams
 from sitl.vehicles.sensors import tilted_imu
 from sitl.world.waves import WaveSpec, hull_tilt
 
@@ -94,3 +99,30 @@ def test_buoys_in_8_degree_waves_estimate_as_well_as_on_flat_water_once_levelled
     print(f"seed {seed}: levelled {levelled[0]:.2f} m {levelled[1]:.3f} m/s; not {raw[0]:.2f} m {raw[1]:.3f} m/s")
     assert levelled[0] < 1.0 and levelled[1] < 0.12
     assert raw[1] > 1.5 * levelled[1]
+
+
+@pytest.mark.parametrize("streams", ["sensor-rate", "ardupilot"])
+def test_a_tilted_hulls_readings_go_out_in_attitude_and_the_whole_imu(streams: str) -> None:
+    """A simulated autopilot handed tilted readings sends them in ATTITUDE (roll, pitch, rates) and SCALED_IMU (z
+    and the x, y rates), at sensor rate or at its stream rates, and the vessel's decoder reads them back (to the
+    messages' resolution: float32 angles, mG and mrad/s)."""
+    vehicle = SimulatedVehicle(1, BUOY, 50.0, armed=True, streams=streams)
+    if streams == "ardupilot":
+        for message in (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SCALED_IMU):
+            vehicle.receive(set_message_interval(Encoder(), 1, message, 10.0), 0.0)
+    one, t = np.array([0]), np.array([1.0])
+    compass = CompassReading(
+        one, t, np.array([0.7]), np.array([0.1]), np.array([-0.05]), np.array([[0.02, -0.03, 0.4]])
+    )
+    imu = ImuReading(one, t, np.array([[1.2, -0.8]]), np.array([-0.4]), np.array([9.7]), np.array([[0.02, 0.03]]))
+    frames = [bytearray()]
+    encode_readings(SensorReadings(compass=compass, imu=imu), 1.0, [vehicle], frames)
+    prepend_streams(1.0, [vehicle], frames)
+    readings = TelemetryDecoder(lambda: 1.0, source_system=1, source_component=1).feed(bytes(frames[0]))
+    attitude = next(r for r in readings if isinstance(r, CompassReading))
+    level = next(r for r in readings if isinstance(r, ImuReading))
+    np.testing.assert_allclose([attitude.roll_rad[0], attitude.pitch_rad[0]], [0.1, -0.05], atol=1e-7)
+    np.testing.assert_allclose(attitude.body_rates_frd_radps, [[0.02, -0.03, 0.4]], atol=1e-7)
+    np.testing.assert_allclose(level.accel_z_mps2, [9.7], atol=0.01)
+    np.testing.assert_allclose(level.gyro_xy_radps, [[0.02, 0.03]], atol=0.001)
+    np.testing.assert_allclose(level.gyro_z_radps, [-0.4], atol=0.001)
