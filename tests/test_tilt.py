@@ -230,11 +230,11 @@ def test_antenna_offsets_are_scipys_rotation_of_the_lever_arm_and_its_swing(seed
 MAST = (0.3, 0.0, -1.5)  # an antenna 1.5 m up a mast, 0.3 m forward of the IMU
 
 
-@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("seed", range(3))
 def test_a_buoy_with_its_antenna_up_a_mast_keeps_a_still_estimate_once_its_fixes_are_moved_to_the_imu(seed) -> None:
     """The rolling buoy's antenna 1.5 m up a mast and 0.3 m forward swings about 0.25 m and 0.27 m/s; with a good
-    receiver (0.3 m, 0.05 m/s) the EKF told where the antenna is keeps still (seeds 0-4: 0.025-0.031 m/s and
-    0.06-0.09 m RMS), one not told follows the swing and sits at the antenna (0.070-0.077 m/s, 0.33-0.41 m)."""
+    receiver (0.3 m, 0.05 m/s) the EKF told where the antenna is keeps still (seeds 0-2: 0.025-0.031 m/s and
+    0.07-0.09 m RMS), one not told follows the swing and sits at the antenna (0.070-0.076 m/s, 0.35-0.41 m)."""
     good = (0.3, 0.05)
     speed, distance = _velocity_rms(seed, True, MAST, told=True, gps_sigma=good)
     speed_not, distance_not = _velocity_rms(seed, True, MAST, told=False, gps_sigma=good)

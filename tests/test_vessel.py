@@ -129,29 +129,25 @@ def test_a_throttle_limit_on_the_autopilot_is_the_limit_the_vessel_plans_with(st
     assert sent and all(abs(c[3] - 1500) <= half[0] and abs(c[4] - 1500) <= half[1] for c in sent)
 
 
-def test_the_gps_lag_the_autopilot_compensates_is_the_one_the_vessel_dates_fixes_with(stand_in: StandInVehicle) -> None:
+def test_the_gps_lag_and_antenna_offset_the_autopilot_has_are_the_ones_the_vessel_uses(
+    stand_in: StandInVehicle,
+) -> None:
     """GPS1_DELAY_MS 120: the autopilot's EKF takes its fixes as measured 120 ms before it read them. The vessel
-    reads it at start and dates its fixes so too (a `gps_lag_s` setting of its own wins), and still drives."""
-    assert stand_in.vehicle.params.set("GPS1_DELAY_MS", 120)
+    reads it at start and dates its fixes so too (a `gps_lag_s` setting of its own wins), and still drives.
+    Likewise the antenna's offset: GPS1_POS (1.5 m up, 0.5 m forward) less INS_POS1 (the IMU 0.1 m forward), by
+    which it moves its fixes to the IMU (on this level hull it still drives)."""
+    for name, value in (("GPS1_DELAY_MS", 120), ("GPS1_POS_X", 0.5), ("GPS1_POS_Z", -1.5), ("INS_POS1_X", 0.1)):
+        assert stand_in.vehicle.params.set(name, value)
     vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
     stats = vessel.run(duration_s=10.0)
     assert vessel.vehicle.decoder.gps_lag_s == pytest.approx(0.12)
+    assert vessel.pipeline.antenna_frd_m[0] == pytest.approx([0.4, 0.0, -1.5])
+    assert stats.antenna_unplaced <= 2
     assert stats.commands > 20 and stand_in.position[0] > 1.0, f"moved east towards the goal: {stand_in.position}"
     vessel.config = replace(vessel.config, gps_lag_s=0.05)  # as `--gps-lag 0.05` would have set it
     vessel.vehicle.decoder.gps_lag_s = 0.05
     vessel._place_fixes(vessel.autopilot.profile.gps_lag_s)
     assert vessel.vehicle.decoder.gps_lag_s == 0.05
-
-
-def test_the_vessel_moves_its_fixes_to_the_imu_by_the_antenna_offset_the_autopilot_has(stand_in) -> None:
-    """GPS1_POS (the antenna 1.5 m up, 0.5 m forward) less INS_POS1 (the IMU 0.1 m forward): read at start, the
-    pipeline's antenna offset, as ArduPilot's EKF takes it; on a level hull the vessel still drives."""
-    for name, value in (("GPS1_POS_X", 0.5), ("GPS1_POS_Z", -1.5), ("INS_POS1_X", 0.1)):
-        assert stand_in.vehicle.params.set(name, value)
-    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
-    stats = vessel.run(duration_s=6.0)
-    assert vessel.pipeline.antenna_frd_m[0] == pytest.approx([0.4, 0.0, -1.5])
-    assert stats.commands > 10 and vessel.pipeline.antenna_unplaced <= 2
 
 
 def test_the_ground_station_hears_a_position_only_once_a_fix_set_it(stand_in: StandInVehicle) -> None:

@@ -198,6 +198,11 @@ class VesselStats:
     # behaviour in use at the end: a rebuild from new parameters starts them again).
     collision_interventions: int = 0
     collision_updates: int = 0
+    # IMU readings levelled with the hull's attitude, and those that came with none near them (taken as level);
+    # fixes from an offset antenna that came with no attitude to move them by (bob_autonomy.estimation.tilt).
+    imu_levelled: int = 0
+    imu_unlevelled: int = 0
+    antenna_unplaced: int = 0
     compute_latency_s: list[float] = field(default_factory=list)
     telemetry_to_command_s: list[float] = field(default_factory=list)
     gcs: dict[str, int] = field(default_factory=dict)  # the GCS component's rejected-input counters, at the end
@@ -610,6 +615,10 @@ class Vessel(VesselLinks, AutopilotDriving):
         counters = vars(self.vehicle.decoder.counters).items()
         self.stats.vehicle_link = {k: v for k, v in counters if isinstance(v, int) and not isinstance(v, bool) and v}
         self.stats.mpc_fallbacks = sum(getattr(m, "fallbacks", 0) for m in getattr(self.pipeline, "mpcs", ()))
+        if isinstance(self.pipeline, BuoyPipeline):
+            tilt = self.pipeline.tilt
+            self.stats.imu_levelled, self.stats.imu_unlevelled = tilt.levelled, tilt.unlevelled
+            self.stats.antenna_unplaced = self.pipeline.antenna_unplaced
         layer = collision_layer(self.agent.behavior) if hasattr(self, "agent") else None
         if layer is not None:
             self.stats.collision_interventions, self.stats.collision_updates = layer.interventions, layer.updates
