@@ -61,12 +61,11 @@ def _imu_fields(
     """SCALED_IMU's and RAW_IMU's accelerometer (mG), gyro (mrad/s) and magnetometer (0) fields, FRD, from our
     x forward, y left, z up; a z specific force of None is 1 g exactly (-1000 mG)."""
     to_mg = 1000.0 / STANDARD_GRAVITY_MPS2
+    ax, ay, gz = _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), _int16(-gyro_z_radps * 1000.0)
+    if accel_z_mps2 is None and gyro_xy_radps == (0.0, 0.0):  # a level hull (the simulator's, every message)
+        return [ax, ay, -1000, 0, 0, gz, 0, 0, 0]
     z = -1000 if accel_z_mps2 is None else _int16(-accel_z_mps2 * to_mg)
-    return [
-        _int16(accel_body_mps2[0] * to_mg), _int16(-accel_body_mps2[1] * to_mg), z,
-        _int16(gyro_xy_radps[0] * 1000.0), _int16(-gyro_xy_radps[1] * 1000.0), _int16(-gyro_z_radps * 1000.0),
-        0, 0, 0,
-    ]  # fmt: skip
+    return [ax, ay, z, _int16(gyro_xy_radps[0] * 1000.0), _int16(-gyro_xy_radps[1] * 1000.0), gz, 0, 0, 0]
 
 
 class TelemetryEncoder:
