@@ -3,8 +3,9 @@
 Why: the estimators treat the accelerometer's x, y as the hull's horizontal acceleration and the z gyro as its
 yaw rate. On a level hull that is so. On water it rolls and pitches, and the accelerometer measures specific
 force f = R^T (a - g), so a tilt of theta puts g sin(theta) of gravity into the planar reading (0.17 m/s^2 per
-degree, 1.5 m/s^2 at ArduPilot's SITL motorboat's 9 degrees in its default waves), and the z gyro mixes in
-the roll and pitch rates. The EKF would integrate that into metres-per-second velocity errors.
+degree; ArduPilot's SITL motorboat, rolled up to 4.7 degrees by its waves, reads 0.34-0.54 m/s^2 RMS while it
+lies still: tests/ardupilot/test_real_waves.py), and the z gyro mixes in the roll and pitch rates. The EKF
+would integrate that into metres-per-second velocity errors (a still buoy rolled 9 degrees: 1.6 m/s RMS).
 
 What: with ATTITUDE's roll phi (right side down) and pitch theta (nose up), the readings in the body frame
 (x forward, y right, z down: FRD, as MAVLink gives them) are turned into the frame that yaws with the hull but
