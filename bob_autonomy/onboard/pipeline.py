@@ -164,28 +164,32 @@ class BuoyPipeline:
     def feed(self, readings: SensorReadings | Iterable[object]) -> None:
         """Fuse readings (any order; each carries its measurement time and vessel rows). IMU readings are levelled
         with the hulls' attitude (`bob_autonomy.estimation.tilt`) from the compass readings that carry one."""
-        for reading in self._levelled(_flatten(readings)):
-            if isinstance(reading, ImuReading):
-                if self.use_ekf:  # the accelerometer drives the prediction; the known thrust makes drift observable
-                    a = reading.agents
-                    self.estimator.predict(a, reading.t_s, reading.accel_body_mps2, self.thrust_world_n[a])
-                    self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
-            elif isinstance(reading, GpsFix):
-                x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
-                xy, velocity = self._at_reference_point(reading, np.column_stack((x, y)))
-                self.last_fix_xy[reading.agents] = xy
-                self.last_fix_t[reading.agents] = reading.t_s
-                if self.use_ekf:
-                    accuracy = self.gps_accuracy.apply(
-                        reading.agents, reading.t_s, reading.accuracy_m, reading.speed_accuracy_mps
-                    )
-                    self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity, *accuracy)
-                else:
-                    self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity)
-            elif isinstance(reading, CompassReading):
-                _update_compass(self.estimator, reading, self.use_ekf)
+        for reading in self._levelled(_flatten(readings)):  # in time order: nothing fused by replay that need not be
+            self._fuse(reading)
+
+    def _fuse(self, reading: object) -> None:
+        """One reading (levelled) into the estimator."""
+        if isinstance(reading, ImuReading):
+            if self.use_ekf:  # the accelerometer drives the prediction; the known thrust makes drift observable
+                a = reading.agents
+                self.estimator.predict(a, reading.t_s, reading.accel_body_mps2, self.thrust_world_n[a])
+                self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
+        elif isinstance(reading, GpsFix):
+            x, y = self.frame.to_local(reading.lat_deg, reading.lon_deg)
+            xy, velocity = self._at_reference_point(reading, np.column_stack((x, y)))
+            self.last_fix_xy[reading.agents] = xy
+            self.last_fix_t[reading.agents] = reading.t_s
+            if self.use_ekf:
+                accuracy = self.gps_accuracy.apply(
+                    reading.agents, reading.t_s, reading.accuracy_m, reading.speed_accuracy_mps
+                )
+                self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity, *accuracy)
             else:
-                self.ignored += 1
+                self.estimator.update_gps(reading.agents, reading.t_s, xy, velocity)
+        elif isinstance(reading, CompassReading):
+            _update_compass(self.estimator, reading, self.use_ekf)
+        else:
+            self.ignored += 1
 
     def _at_reference_point(self, fix: GpsFix, xy: FloatArray) -> tuple[FloatArray, FloatArray | None]:
         """A fix's positions (k, 2) m and velocities moved from the antenna to the hull's reference point, where
@@ -518,19 +522,15 @@ class MotorboatPipeline(BuoyPipeline):
         )
         return BuoyEkfBank(self.n, params=params)
 
-    def feed(self, readings: SensorReadings | Iterable[object]) -> None:
-        """Fuse readings as a buoy does; without `use_accelerometer` an IMU reading predicts with the thrust model
-        (no accelerometer) and gives its gyro."""
-        if self.use_accelerometer or not self.use_ekf:
-            super().feed(readings)
-            return
-        for reading in self._levelled(_flatten(readings)):  # in time order: nothing fused by replay that need not be
-            if isinstance(reading, ImuReading):
-                a = reading.agents
-                self.estimator.predict(a, reading.t_s, None, self.thrust_world_n[a])
-                self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
-            else:
-                super().feed([reading])
+    def _fuse(self, reading: object) -> None:
+        """As a buoy does; without `use_accelerometer` an IMU reading predicts with the thrust model (no
+        accelerometer) and gives its gyro."""
+        if isinstance(reading, ImuReading) and self.use_ekf and not self.use_accelerometer:
+            a = reading.agents
+            self.estimator.predict(a, reading.t_s, None, self.thrust_world_n[a])
+            self.estimator.update_gyro(a, reading.t_s, reading.gyro_z_radps)
+        else:
+            super()._fuse(reading)
 
     def yaw_rate(self, t_s: float) -> FloatArray:
         """(n,) yaw rate, rad/s: the EKF's, or the filtered heading differences of the simple estimator."""
