@@ -1,5 +1,5 @@
-"""The autopilot's clock since boot placed on the local clock, so that a GPS fix is stamped when it was read, not
-when its message arrived.
+"""The autopilot's clock since boot placed on the local clock, so that a GPS fix is stamped when it was read, and
+the IMU and attitude when they were sent, not when their messages arrived.
 
 ArduPilot stamps GPS_RAW_INT with the time its GPS driver read the fix (`time_usec` = last_fix_time_ms * 1000,
 libraries/AP_GPS/AP_GPS.cpp send_mavlink_gps_raw) and sends it at the rate asked, so a fix is up to one stream
@@ -19,7 +19,8 @@ alone would never follow, and how it is caught:
   of a WINDOW_S window is more than JUMP_S above the estimate, it restarts from the window's smallest sample. So
   the estimate is never more than about JUMP_S + 2 WINDOW_S * (rate difference) too low.
 One late message, or a burst shorter than the window, changes nothing. A fix stamped f is at local time f + offset
-(never later than its arrival).
+(never later than its arrival), and so is a message sent at f: several read from a link at once (a serial port
+read in bursts, a busy vessel loop) keep the times they were sent, not the one time of their arrival.
 """
 
 from __future__ import annotations
@@ -72,10 +73,11 @@ class AutopilotClock:
         self.offset_s = offset_s
         self._window_start_s, self._window_min_s = arrival_s, math.inf
 
-    def fix_time(self, time_usec: int, arrival_s: float) -> float:
-        """The local time (s) of a GPS fix stamped time_usec (us since the autopilot's boot) that arrived at
-        arrival_s: the arrival when the stamp cannot be placed (no sample yet, 0, UNIX time) or is younger than
-        RESOLUTION_S, never later than the arrival."""
+    def place(self, time_usec: int, arrival_s: float) -> float:
+        """The local time (s) of autopilot time time_usec (us since its boot) in a message that arrived at
+        arrival_s (a GPS fix's time of reading, another message's time of sending): the arrival when the stamp
+        cannot be placed (no sample yet, 0, UNIX time) or is younger than RESOLUTION_S, never later than the
+        arrival."""
         if self.offset_s is None or not 0 < time_usec < BOOT_TIME_LIMIT_US:
             return arrival_s
         placed = time_usec * 1e-6 + self.offset_s

@@ -35,6 +35,7 @@ from firmware_bridge.decoder import (
     STANDARD_GRAVITY_MPS2,
     UINT16_MAX,
     TelemetryDecoder,
+    sent_stamp_us,
 )
 from firmware_bridge.frames import V2_HEADER_LEN, V2_MARKER, checksum, decode_unsigned, layout
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
@@ -224,7 +225,11 @@ def _decode_columnar(
         records = records_of[msg_id]
         owners = [believed[i][0] for i in members]
         agents = np.array([decoders[k].agent for k in owners], dtype=np.intp)
-        t_s = np.array([times[k] for k in owners], dtype=np.float64)
+        if msg_id in SENT_TIME_FIELDS:  # dated when sent (`TelemetryDecoder.sent_time`), each row as `feed` does
+            stamps = zip(owners, records[SENT_TIME_FIELDS[msg_id][0]].tolist(), strict=True)
+            t_s = np.array([decoders[k].sent_time(sent_stamp_us(msg_id, stamp), times[k]) for k, stamp in stamps])
+        else:
+            t_s = np.array([times[k] for k in owners], dtype=np.float64)
         rows = _COLUMN_CONVERTERS[msg_id](records, agents, t_s, [decoders[k] for k in owners], columns)
         for i, row in zip(members, rows, strict=True):
             slots[i] = row

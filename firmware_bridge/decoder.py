@@ -12,13 +12,16 @@ whole bad frame, whose length byte may itself be the corrupted one); the
 checksum and the payload decoding are pymavlink's (`MAVLink.decode` of the
 ardupilotmega MAVLink 2 dialect; MAVLink 1 frames are accepted too).
 
-Timestamps: every reading's `t_s` is the decoder's clock (default
-`time.monotonic`) read once per `feed` call, i.e. the local time of reception
-of the chunk, except a GPS fix's: ArduPilot stamps GPS_RAW_INT with the time
-its GPS driver read the fix and repeats it at the rate asked, so the fix is
-placed on the local clock through the autopilot's clock since boot
+Timestamps: a reading's `t_s` is on the decoder's clock (default
+`time.monotonic`), read once per `feed` call (the local time of reception of
+the chunk), and placed through the autopilot's clock since boot
 (`firmware_bridge.autopilot_clock`, learnt from the time_boot_ms of ATTITUDE
-and the IMU messages), less `gps_lag_s`. Frames and sign conventions: see
+and the IMU messages) where the message carries ArduPilot's time: ATTITUDE,
+SCALED_IMU, RAW_IMU, GLOBAL_POSITION_INT and WHEEL_DISTANCE are dated when they
+were sent, so that messages read together keep their own times; a GPS fix
+(GPS_RAW_INT, stamped with the time its GPS driver read it and repeated at the
+rate asked) when it was read, less `gps_lag_s`. Other readings (battery,
+ranges, light, heartbeats) keep the time of reception. Frames and sign conventions: see
 docs/mavlink-mapping.md.
 """
 
@@ -73,6 +76,11 @@ def _boot_time_s(msg) -> float:
     """The autopilot's time since boot (s) at which msg (one of SENT_TIME_FIELDS) was sent."""
     field_name, unit = SENT_TIME_FIELDS[msg.get_msgId()]
     return float(getattr(msg, field_name)) * unit
+
+
+def sent_stamp_us(msg_id: int, value: int) -> int:
+    """A SENT_TIME_FIELDS time field's value in us since the autopilot's boot."""
+    return int(value) * round(SENT_TIME_FIELDS[msg_id][1] * 1e6)
 
 
 _V1 = mavlink.PROTOCOL_MARKER_V1
@@ -413,7 +421,18 @@ class TelemetryDecoder:
     def fix_time(self, time_usec: int, t_s: float) -> float:
         """When a GPS fix stamped time_usec (us since the autopilot's boot) that arrived at t_s was taken, on the
         decoder's clock (s): its stamp placed by the autopilot's clock, less `gps_lag_s`."""
-        return self.autopilot_clock.fix_time(time_usec, t_s) - self.gps_lag_s
+        return self.autopilot_clock.place(time_usec, t_s) - self.gps_lag_s
+
+    def sent_time(self, time_usec: int, t_s: float) -> float:
+        """When a message stamped with the autopilot's time of sending, time_usec (us since its boot), that
+        arrived at t_s was sent, on the decoder's clock (s): so that readings read from the link together (a
+        serial port read in bursts, a busy loop) keep their own times and spacing."""
+        return self.autopilot_clock.place(time_usec, t_s)
+
+    def _sent_time_of(self, msg, t_s: float) -> float:
+        """`sent_time` of msg (one of SENT_TIME_FIELDS), arrived at t_s."""
+        msg_id = msg.get_msgId()
+        return self.sent_time(sent_stamp_us(msg_id, getattr(msg, SENT_TIME_FIELDS[msg_id][0])), t_s)
 
     def _rows(self, t_s: float) -> tuple[IntArray, FloatArray]:
         return self._agents.copy(), np.array([t_s])
@@ -455,14 +474,14 @@ class TelemetryDecoder:
         if msg.lat == 0 and msg.lon == 0:
             self.counters.no_fix += 1  # the autopilot has no position (yet)
             return None
-        agents, times = self._rows(t_s)
+        agents, times = self._rows(self._sent_time_of(msg, t_s))
         velocity = np.array([[msg.vy / 100.0, msg.vx / 100.0]])  # NED x north, y east -> east, north
         return GpsFix(agents, times, np.array([msg.lat / 1e7]), np.array([msg.lon / 1e7]), velocity)
 
     def _attitude(self, msg, t_s: float) -> CompassReading | None:
         if not math.isfinite(msg.yaw):
             return None
-        agents, times = self._rows(t_s)
+        agents, times = self._rows(self._sent_time_of(msg, t_s))
         rates = np.array([[msg.rollspeed, msg.pitchspeed, msg.yawspeed]], dtype=np.float64)
         return CompassReading(agents, times, np.array([heading_from_yaw(msg.yaw)]), np.array([float(msg.roll)]),
                               np.array([float(msg.pitch)]), rates)  # fmt: skip
@@ -470,7 +489,7 @@ class TelemetryDecoder:
     def _imu(self, msg, t_s: float) -> ImuReading:
         # MAVLink body frame: x forward, y right, z down; ours: x forward, y left, yaw rate CCW (about up).
         g = STANDARD_GRAVITY_MPS2 / 1000.0
-        agents, times = self._rows(t_s)
+        agents, times = self._rows(self._sent_time_of(msg, t_s))
         accel = np.array([[msg.xacc * g, -msg.yacc * g]])
         gyro_xy = np.array([[msg.xgyro / 1000.0, -msg.ygyro / 1000.0]])
         return ImuReading(agents, times, accel, np.array([-msg.zgyro / 1000.0]), np.array([-msg.zacc * g]), gyro_xy)
@@ -478,7 +497,7 @@ class TelemetryDecoder:
     def _wheel_distance(self, msg, t_s: float) -> WheelDistance | None:
         if msg.count < 2:
             return None
-        agents, times = self._rows(t_s)
+        agents, times = self._rows(self.sent_time(int(msg.time_usec), t_s))  # Rover: millis() * 1000 when sent
         return WheelDistance(agents, times, np.array([[float(msg.distance[0]), float(msg.distance[1])]]))
 
     def _distance_sensor(self, msg, t_s: float) -> RangeReading:

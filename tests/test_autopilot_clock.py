@@ -94,18 +94,18 @@ def test_one_message_with_a_wild_time_is_forgotten_at_once(wild_boot_s: float) -
     clock.observe(wild_boot_s, 105.0)
     clock.observe(5.0, 105.003)
     assert clock.offset_s == pytest.approx(100.003, abs=0.002)
-    assert clock.fix_time(4_800_000, 105.05) == pytest.approx(104.803, abs=0.002)
+    assert clock.place(4_800_000, 105.05) == pytest.approx(104.803, abs=0.002)
 
 
 def test_what_cannot_be_placed_is_stamped_at_its_arrival() -> None:
     clock = AutopilotClock()
-    assert clock.fix_time(5_000_000, 100.0) == 100.0  # no clock sample yet
+    assert clock.place(5_000_000, 100.0) == 100.0  # no clock sample yet
     clock.observe(10.0, 100.0)  # offset 90 s
-    assert clock.fix_time(9_800_000, 100.0) == pytest.approx(99.8)  # read 0.2 s before its arrival
-    assert clock.fix_time(0, 100.0) == 100.0  # a GPS without time
-    assert clock.fix_time(1_700_000_000_000_000, 100.0) == 100.0  # UNIX time (another autopilot's habit)
-    assert clock.fix_time(9_999_000, 100.0) == 100.0  # 1 ms: within the clocks' resolution
-    assert clock.fix_time(10_500_000, 100.0) == 100.0  # "later than its arrival": never
+    assert clock.place(9_800_000, 100.0) == pytest.approx(99.8)  # read 0.2 s before its arrival
+    assert clock.place(0, 100.0) == 100.0  # a GPS without time
+    assert clock.place(1_700_000_000_000_000, 100.0) == 100.0  # UNIX time (another autopilot's habit)
+    assert clock.place(9_999_000, 100.0) == 100.0  # 1 ms: within the clocks' resolution
+    assert clock.place(10_500_000, 100.0) == 100.0  # "later than its arrival": never
     for bad in (math.nan, math.inf):
         clock.observe(bad, 101.0)
     clock.observe(2e9, 101.0)  # no time since boot

@@ -130,7 +130,7 @@ def test_batch_decoding_gives_feeds_counters_and_readings_bit_for_bit(seed: int)
 def test_every_column_wise_kind_is_exercised() -> None:
     """The random telemetry above reaches every column-wise path, and its special cases, at least once."""
     rng = np.random.default_rng(0)
-    kinds, no_fix, repeated, placed = set(), 0, 0, 0
+    kinds, no_fix, repeated, placed, sent = set(), 0, 0, 0, 0
     for _ in SEEDS:
         _, batched, chunks = _fleet(rng, 9)
         got, columns = decode_batch(batched, chunks)
@@ -141,7 +141,9 @@ def test_every_column_wise_kind_is_exercised() -> None:
             columns.take(r.key, [r.index]) for rows in got for r in rows if isinstance(r, Row) and r.key[0] is GpsFix
         ]
         placed += sum(float(f.t_s[0]) != 12.5 for f in fixes)  # a fix dated before its arrival
-    assert no_fix > 0 and repeated > 0 and placed > 0
+        others = [columns.take(r.key, [r.index]) for rows in got for r in rows if isinstance(r, Row)]
+        sent += sum(float(r.t_s[0]) < 12.5 for r in others if r.__class__ is not GpsFix)  # dated when sent
+    assert no_fix > 0 and repeated > 0 and placed > 0 and sent > 0
     names = {(kind.__name__, present[-1]) for kind, present in kinds}
     assert names == {("GpsFix", True), ("GpsFix", False), ("CompassReading", True), ("ImuReading", True)}
 
