@@ -135,6 +135,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         self.home: tuple[int, int, float] | None = None  # lat degE7, lon degE7, alt m
         self.home_locked = False
         self._gps = self._compass = self._imu = self._wheels = self._ranges = self._light = None
+        self._gps_accuracy: tuple[float | None, float | None] = (None, None)  # the receiver's reported h, speed
         self._last_fix_s = -math.inf
         self._sent_reading: dict[object, float] = {}
         self._command = np.zeros(2)  # what the last RC override asks for (N or m/s), before slew, arming and mode

@@ -106,6 +106,12 @@ class GpsSpec:
     satellites, same atmosphere), a Gauss-Markov process with time constant
     common_time_constant_s: it moves the whole swarm's fixes together, so it
     spoils absolute but not relative positions.
+    accuracy_m, speed_accuracy_mps: the one-sigma horizontal (m) and speed (m/s)
+    accuracies the receiver reports with each fix (GPS_RAW_INT h_acc and vel_acc,
+    as a u-blox does and ArduPilot's SITL with SIM_GPS1_ACC): None (default)
+    reports its own noise, noise_m and velocity_noise_mps (a receiver cannot know
+    the fleet-wide common error); a value reports that (an optimistic or a
+    pessimistic receiver); 0 reports none (an old receiver, MAVLink 1).
     """
 
     rate_hz: float = 5.0
@@ -117,10 +123,13 @@ class GpsSpec:
     velocity_noise_mps: float = 0.1
     common_noise_m: float = 0.0
     common_time_constant_s: float = 60.0
+    accuracy_m: float | None = None
+    speed_accuracy_mps: float | None = None
 
     def __post_init__(self) -> None:
         _check_rate_latency(self)
         _check_nonnegative(self, "noise_m", "quantum_deg", "correlated", "velocity_noise_mps", "common_noise_m")
+        _check_nonnegative(self, *(n for n in ("accuracy_m", "speed_accuracy_mps") if getattr(self, n) is not None))
         _require(self.common_time_constant_s > 0.0, "GpsSpec.common_time_constant_s must be positive")
         for window in self.outages:
             _require(
@@ -131,6 +140,15 @@ class GpsSpec:
     def in_outage(self, t_s: float) -> bool:
         """Whether a fix measured at t_s (s) falls inside an outage window [t_start_s, t_end_s)."""
         return any(start <= t_s < end for start, end in self.outages)
+
+    def reported(self) -> tuple[float, float] | None:
+        """The (horizontal m, speed m/s) accuracies the receiver reports, NaN for one it does not; None when it
+        reports neither."""
+        horizontal = self.noise_m if self.accuracy_m is None else self.accuracy_m
+        speed = self.velocity_noise_mps if self.speed_accuracy_mps is None else self.speed_accuracy_mps
+        if horizontal == 0.0 and speed == 0.0:
+            return None
+        return (horizontal or math.nan), (speed or math.nan)
 
 
 @dataclass(frozen=True)
@@ -456,7 +474,9 @@ class SensorSuite:
             lat = np.round(lat / spec.quantum_deg) * spec.quantum_deg
             lon = np.round(lon / spec.quantum_deg) * spec.quantum_deg
         ground_velocity = velocity[agents] + spec.velocity_noise_mps * self.rng.standard_normal((k, 2))
-        self._gps.push(t, GpsFix(agents, np.full(k, t), lat, lon, ground_velocity))
+        reported = spec.reported()
+        accuracies = (None, None) if reported is None else (np.full(k, reported[0]), np.full(k, reported[1]))
+        self._gps.push(t, GpsFix(agents, np.full(k, t), lat, lon, ground_velocity, *accuracies))
 
     def _common_gps_error(self, t: float, spec: GpsSpec) -> FloatArray:
         """(2,) the fleet-wide GPS error at t (s): exact Gauss-Markov steps between calls."""

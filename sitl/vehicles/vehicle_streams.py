@@ -21,10 +21,14 @@ class TelemetryStreams:
     """Telemetry out, mixed into SimulatedVehicle (which holds the state it uses)."""
 
     def observe(self, kind: str, t_s: float, *values) -> None:
-        """Take the latest reading of one sensor: "gps" (lat, lon deg, velocity (east, north) or None), "compass"
+        """Take the latest reading of one sensor: "gps" (lat, lon deg, velocity (east, north) or None; then
+        optionally the receiver's reported horizontal and speed accuracies, m and m/s, None for none), "compass"
         (heading rad; on a tilted hull also roll, pitch rad and body rates (p, q, r) rad/s FRD), "imu" (accel body
         (x, y) m/s^2, yaw rate rad/s; on a tilted hull also z m/s^2 and the (x, y) rates), "wheels" (distances
         (l, r) m), "ranges" (distances m, max range m), "light" (left, right)."""
+        if kind == "gps":
+            self._gps_accuracy = tuple(values[3:5]) if len(values) > 3 else (None, None)
+            values = values[:3]
         setattr(self, f"_{kind}", (t_s, *values))
         if kind == "gps":
             self._last_fix_s = t_s
@@ -91,12 +95,14 @@ class TelemetryStreams:
         """As ArduPilot sends it (libraries/AP_GPS/AP_GPS.cpp send_mavlink_gps_raw): at its interval whatever the
         GPS's rate, stamped with the time of the fix it holds, so a fix goes out again until a newer one comes;
         when no fix has come for GPS_TIMEOUT_MS (4 s) the GPS state is cleared (AP_GPS::update_instance): NO_GPS,
-        no position, unknown HDOP, still the last fix's time. Nothing before the first fix."""
+        no position, unknown HDOP and accuracies, still the last fix's time. Nothing before the first fix. The
+        receiver's accuracies (h_acc, vel_acc) as it reported them, as ArduPilot passes them on."""
         if not self._gps:
             return b""
         t_fix, lat, lon, velocity = self._gps
         if self.has_fix():
-            return self.telemetry.gps_raw_int(t_fix, lat, lon, velocity)
+            h_acc, vel_acc = self._gps_accuracy
+            return self.telemetry.gps_raw_int(t_fix, lat, lon, velocity, h_acc_m=h_acc, vel_acc_mps=vel_acc)
         cleared = m.GPS_FIX_TYPE_NO_GPS  # and speed and course 0, as the cleared state has them
         return self.telemetry.gps_raw_int(t_fix, 0.0, 0.0, (0.0, 0.0), fix_type=cleared, satellites=0, hdop=None)
 

@@ -59,10 +59,13 @@ def encode_readings(
         g = readings.gps
         for i, row in vehicle_rows(g.agents):
             velocity = None if g.velocity_mps is None else tuple(float(v) for v in g.velocity_mps[i])
+            accuracy = (_reported(g.accuracy_m, i), _reported(g.speed_accuracy_mps, i))
             vehicle = vehicles[row]
-            vehicle.observe("gps", t_s, float(g.lat_deg[i]), float(g.lon_deg[i]), velocity)
+            vehicle.observe("gps", t_s, float(g.lat_deg[i]), float(g.lon_deg[i]), velocity, *accuracy)
             if direct(row):
-                frames[row] += vehicle.telemetry.gps_raw_int(t_s, g.lat_deg[i], g.lon_deg[i], velocity)
+                frames[row] += vehicle.telemetry.gps_raw_int(
+                    t_s, g.lat_deg[i], g.lon_deg[i], velocity, h_acc_m=accuracy[0], vel_acc_mps=accuracy[1]
+                )
                 if fused_position:
                     heading = vehicle.heading()
                     frames[row] += vehicle.telemetry.global_position_int(
@@ -86,6 +89,13 @@ def encode_readings(
             vehicles[row].observe("wheels", t_s, distances)
             if direct(row):
                 frames[row] += vehicles[row].telemetry.wheel_distance(t_s, distances)
+
+
+def _reported(values: np.ndarray | None, i: int) -> float | None:
+    """A receiver's reported accuracy of row i (None: it reports none)."""
+    if values is None or not np.isfinite(values[i]):
+        return None
+    return float(values[i])
 
 
 def prepend_streams(t_s: float, vehicles: Sequence[SimulatedVehicle], frames: list[bytearray]) -> None:
