@@ -26,6 +26,14 @@ pytestmark = NEEDS_SITL
 
 READ_EVERY_S = 0.3  # as a vessel whose loop reads its link every 0.3 s
 BURSTS = 40
+# The messages read as IMU or attitude readings, and their time of sending (field, s per unit): RAW_IMU comes
+# too, at ArduPilot's RAW_SENS rate.
+SENT_FIELD = {"SCALED_IMU": ("time_boot_ms", 1e-3), "ATTITUDE": ("time_boot_ms", 1e-3), "RAW_IMU": ("time_usec", 1e-6)}
+
+
+def _sent_s(msg) -> float:
+    field, unit = SENT_FIELD[msg.get_type()]
+    return getattr(msg, field) * unit
 
 
 def _read_all(link: socket.socket) -> bytes:
@@ -53,9 +61,8 @@ def test_readings_of_one_burst_keep_the_times_ardupilot_sent_them_at(tmp_path) -
             for message in (mavlink.MAVLINK_MSG_ID_SCALED_IMU, mavlink.MAVLINK_MSG_ID_ATTITUDE):
                 link.sendall(set_message_interval(Encoder(), 1, message, 25.0))
             decoder = TelemetryDecoder(source_system=1, source_component=1)  # as a vessel
-            sent = []  # ArduPilot's time_boot_ms of each SCALED_IMU and ATTITUDE, in stream order
-            wanted = ("SCALED_IMU", "ATTITUDE")
-            decoder.message_hook = lambda msg: sent.append(msg.time_boot_ms) if msg.get_type() in wanted else None
+            sent = []  # ArduPilot's time of sending (s since boot) of each IMU and attitude message, in stream order
+            decoder.message_hook = lambda msg: sent.append(_sent_s(msg)) if msg.get_type() in SENT_FIELD else None
             bursts = []  # per burst: (its arrival, [(placed time, ArduPilot's time s) of each IMU and attitude])
             for _ in range(BURSTS):
                 time.sleep(READ_EVERY_S)
@@ -64,14 +71,21 @@ def test_readings_of_one_burst_keep_the_times_ardupilot_sent_them_at(tmp_path) -
                 readings = decoder.feed(data)
                 arrival = time.monotonic()
                 placed = [float(r.t_s[0]) for r in readings if isinstance(r, ImuReading | CompassReading)]
-                bursts.append((arrival, list(zip(placed, [ms * 1e-3 for ms in sent[before:]], strict=True))))
+                bursts.append((arrival, list(zip(placed, sent[before:], strict=True))))
     learnt = [pairs for arrival, pairs in bursts[3:] if pairs]  # once the clock has had a few samples
     assert len(learnt) >= BURSTS - 5
     distinct = [len({round(placed, 4) for placed, _ in pairs}) for pairs in learnt]
     assert min(distinct) >= 4, distinct  # 25 Hz x 0.3 s: about 7 sending times a burst (with arrival stamps: 1)
+    for pairs in learnt:  # within a burst, spaced as ArduPilot sent them (its stamps are whole ms)
+        placed, ardupilot = np.array(pairs).T
+        np.testing.assert_allclose(np.diff(placed), np.diff(ardupilot), atol=0.0025)
     placed = np.array([p for pairs in learnt for p, _ in pairs])
     ardupilot = np.array([a for pairs in learnt for _, a in pairs])
+    arrived = np.array([arrival for arrival, pairs in bursts[3:] if pairs for _ in pairs])
     offset = placed - ardupilot  # the clocks' offset, plus the error of the placement
-    print(f"offset spread {np.ptp(offset) * 1e3:.1f} ms over {len(placed)} readings; times per burst {distinct}")
-    assert np.ptp(offset) < 0.01
+    # What moves it: the clock's estimate is the smallest delay seen, leaked at 10 ms/s, and a burst's freshest
+    # message is 0-40 ms old when read (22-28 ms in runs of 2026-11-28; by arrival, 307 ms).
+    spread, by_arrival = np.ptp(offset), np.ptp(arrived - ardupilot)
+    print(f"offset spread {spread * 1e3:.1f} ms over {len(placed)} readings (by arrival {by_arrival * 1e3:.0f} ms)")
+    assert spread < 0.05 and by_arrival > 0.25
     assert all(p <= arrival for arrival, pairs in bursts for p, _ in pairs)
