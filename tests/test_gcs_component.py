@@ -239,13 +239,21 @@ def test_unknown_command_is_unsupported(component, gcs) -> None:
 
 
 def test_arm_disarm_and_mode_are_handed_to_the_process(component, gcs) -> None:
-    assert ack_of(command(gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), 400) == mavlink.MAV_RESULT_ACCEPTED
+    """Answered "in progress" at once; the final answer is the autopilot's, which the process passes back."""
+    assert ack_of(command(gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), 400) == mavlink.MAV_RESULT_IN_PROGRESS
     command(gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
     command(gcs, mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 15)
     taken = component.take_autopilot_commands()
     assert [(c.kind, c.force) for c in taken] == [("arm", False), ("disarm", True), ("set_mode", False)]
     assert taken[2].custom_mode == 15 and taken[0].source == (255, 190)
     assert component.pending_autopilot == []
+    component.answer_autopilot_command(taken[0], mavlink.MAV_RESULT_FAILED)  # its pre-arm checks failed
+    component.answer_autopilot_command(taken[2], mavlink.MAV_RESULT_ACCEPTED)
+    (refused, accepted) = of(gcs.answers(), "COMMAND_ACK")
+    assert (refused.command, refused.result) == (400, mavlink.MAV_RESULT_FAILED)
+    assert (accepted.command, accepted.result) == (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_ACCEPTED)
+    assert (refused.target_system, refused.target_component) == (255, 190)
+    assert component.counters.autopilot_refused == 1
     answers = command(gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0.5)
     assert ack_of(answers, 400) == mavlink.MAV_RESULT_DENIED and component.pending_autopilot == []
 

@@ -80,3 +80,56 @@ def test_a_command_for_the_autopilot_is_answered_by_the_autopilot(routed_vessel)
     version = _wait_for(gcs, lambda m: m.get_type() == "AUTOPILOT_VERSION")
     assert version is not None and version.get_srcComponent() == 1
     assert version.capabilities & mavutil.mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+
+
+def _answers_from_the_autonomy(gcs, command: int, timeout_s: float = 10.0) -> tuple[list[int], list[str]]:
+    """The results of the autonomy's (component 191) COMMAND_ACKs for `command` up to its final one (not
+    IN_PROGRESS), and the autonomy's STATUSTEXTs meanwhile."""
+    results, texts = [], []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and (not results or results[-1] == mavutil.mavlink.MAV_RESULT_IN_PROGRESS):
+        msg = gcs.recv_match(type=["COMMAND_ACK", "STATUSTEXT"], blocking=True, timeout=0.2)
+        if msg is None or msg.get_srcComponent() != 191:
+            continue
+        if msg.get_type() == "STATUSTEXT":
+            texts.append(msg.text)
+        elif msg.command == command:
+            results.append(msg.result)
+    return results, texts
+
+
+def test_an_arm_command_to_the_autonomy_gets_the_autopilots_own_answer(routed_vessel) -> None:
+    """An arm or disarm sent to the autonomy's component is passed on to the autopilot: answered IN_PROGRESS at
+    once, then with the autopilot's result. Before, the autonomy answered ACCEPTED itself, so a ground station was
+    told a vessel armed that its autopilot had refused. Refused, the autonomy says why (the autopilot's reasons);
+    unanswered (a deaf autopilot), it answers FAILED after 5 s of its clock and says so."""
+    vehicle, gcs, vessel = routed_vessel
+    arm_disarm = mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+    in_progress, accepted, failed = (
+        mavutil.mavlink.MAV_RESULT_IN_PROGRESS, mavutil.mavlink.MAV_RESULT_ACCEPTED, mavutil.mavlink.MAV_RESULT_FAILED
+    )  # fmt: skip
+    assert _wait_for(gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 191) is not None
+    deadline = time.monotonic() + 10.0
+    while not vehicle.vehicle.armed:  # the vessel arms its vehicle as it starts
+        assert time.monotonic() < deadline, "the vessel never armed its vehicle"
+        time.sleep(0.1)
+
+    gcs.mav.command_long_send(1, 191, arm_disarm, 0, 0, 0, 0, 0, 0, 0, 0)  # disarm
+    results, _ = _answers_from_the_autonomy(gcs, arm_disarm)
+    assert results == [in_progress, accepted] and not vehicle.vehicle.armed
+
+    vehicle.vehicle.params.set("RC3_MIN", 1600)  # ArduPilot's RC checks refuse to arm (above 1300 us)
+    gcs.mav.command_long_send(1, 191, arm_disarm, 0, 1, 0, 0, 0, 0, 0, 0)
+    results, texts = _answers_from_the_autonomy(gcs, arm_disarm)
+    assert results == [in_progress, failed] and not vehicle.vehicle.armed
+    said = "".join(texts)  # STATUSTEXT carries 50 characters a message: a longer text comes in chunks
+    assert "vehicle 1 refused arm" in said and "Arm: Throttle radio min too high" in said, texts
+
+    vehicle.deaf.set()  # hears nothing more: no answer comes
+    started = time.monotonic()
+    gcs.mav.command_long_send(1, 191, arm_disarm, 0, 1, 0, 0, 0, 0, 0, 0)
+    results, texts = _answers_from_the_autonomy(gcs, arm_disarm)
+    assert results == [in_progress, failed]
+    assert 0.8 < time.monotonic() - started < 3.0  # 5 s of the vessel's clock, which runs at SCALE (5x)
+    assert "vehicle 1 did not answer arm within 5 s" in "".join(texts), texts
+    assert vessel.gcs.counters.autopilot_refused == 2

@@ -11,9 +11,9 @@ Protocols (docs/gcs-protocol.md has the tables):
   PARAM_VALUE (index, count, the value actually in force; INT32 values are sent C-cast to float, as
   ArduPilot does). A refused PARAM_SET is answered with the unchanged value and a STATUSTEXT saying why.
 - COMMAND_LONG / COMMAND_INT, answered with COMMAND_ACK: MISSION_START, DO_PAUSE_CONTINUE, arm / disarm and
-  DO_SET_MODE (handed to the process), DO_REPOSITION / NAV_WAYPOINT (goal), DO_FOLLOW (leader),
-  USER_1 (behaviour), DO_FENCE_ENABLE, REQUEST_MESSAGE / REQUEST_AUTOPILOT_CAPABILITIES; others
-  MAV_RESULT_UNSUPPORTED.
+  DO_SET_MODE (handed to the process: IN_PROGRESS, then the autopilot's own answer), DO_REPOSITION /
+  NAV_WAYPOINT (goal), DO_FOLLOW (leader), USER_1 (behaviour), DO_FENCE_ENABLE, REQUEST_MESSAGE /
+  REQUEST_AUTOPILOT_CAPABILITIES; others MAV_RESULT_UNSUPPORTED.
 - missions: upload (MISSION_COUNT, then our MISSION_REQUEST_INT, answered by MISSION_ITEM_INT or the legacy
   MISSION_ITEM) and download (MISSION_REQUEST_LIST, MISSION_REQUEST_INT or MISSION_REQUEST) of the goal
   waypoints (MISSION), a geofence inclusion polygon (FENCE) and one rally point (RALLY); MISSION_CLEAR_ALL.

@@ -142,6 +142,7 @@ class GcsCounters:
     commands: int = 0
     commands_unsupported: int = 0
     commands_denied: int = 0
+    autopilot_refused: int = 0  # commands passed on to the autopilot that it refused or left unanswered
     params_set: int = 0
     params_rejected: int = 0
     mission_uploads: int = 0

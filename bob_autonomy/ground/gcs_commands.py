@@ -1,6 +1,8 @@
 """The command protocol of the ground-station component (`bob_autonomy.ground.gcs`): COMMAND_LONG and COMMAND_INT,
 each value checked (`bob_autonomy.ground.gcs_checks.command_problem`), run and answered with COMMAND_ACK; arm, disarm
-and mode changes become `AutopilotCommand`s for the process to pass on to the autopilot.
+and mode changes become `AutopilotCommand`s for the process to pass on to the autopilot: they are answered
+MAV_RESULT_IN_PROGRESS at once, and with the autopilot's own result once it has answered
+(`answer_autopilot_command`), so a ground station is never told a vessel armed when its autopilot refused.
 
 `CommandProtocol` is a mixin of `GcsComponent`, which provides the attributes it declares.
 """
@@ -159,7 +161,15 @@ class CommandProtocol:
                 "set_mode", cmd.command, p, cmd.source, now, base_mode=int(p[0]), custom_mode=int(p[1])
             )
         self.pending_autopilot.append(command)
-        return mavlink.MAV_RESULT_ACCEPTED
+        return mavlink.MAV_RESULT_IN_PROGRESS  # the autopilot's answer follows (`answer_autopilot_command`)
+
+    def answer_autopilot_command(self, command: AutopilotCommand, result: int) -> None:
+        """The final COMMAND_ACK of a command passed on to the autopilot (answered MAV_RESULT_IN_PROGRESS when it
+        came), to the station that sent it: the autopilot's own result (MAV_RESULT_*), or MAV_RESULT_FAILED when
+        it did not answer. MAVLink's command protocol: an IN_PROGRESS is followed by the final result."""
+        if result != mavlink.MAV_RESULT_ACCEPTED:
+            self.counters.autopilot_refused += 1
+        self._queue(self.codec.mav.command_ack_encode(command.command, int(result), 0, 0, *command.source))
 
     def _cmd_goal(self, cmd: _Command) -> int:
         lat, lon = validate_latlon(cmd.latlon, "goal")

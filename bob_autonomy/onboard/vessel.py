@@ -293,6 +293,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self.pose_known = False
         self._obeying = True
         self._from_vehicle: list[bytes] = []  # the vehicle's frames waiting for the next ground-station write
+        self._forwarded = []  # a ground station's commands passed on to the autopilot, not yet answered
         self._hold_heading = False
         self._heading_ref: float | None = None
         self._ignoring_since: float | None = None

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.ground.gcs import GcsComponent
+from bob_autonomy.ground.gcs import AutopilotCommand, GcsComponent
+from bob_autonomy.onboard.autopilot_start import RESULT_WORDS
 from bob_autonomy.onboard.senses import EbotSenses
 from bob_autonomy.onboard.vehicle_link import VehicleLink
 from firmware_bridge.links import Link, LinkError, SerialLink, TcpLink, open_link
@@ -24,6 +25,8 @@ if TYPE_CHECKING:
 logger = logging.getLogger("bob_autonomy.onboard.vessel")
 
 MAX_ROUTED_BACKLOG = 2000  # frames; a ground-station link that cannot keep up loses the oldest
+FORWARDED_ANSWER_S = 5.0  # s (vessel clock) the autopilot has to answer a ground station's arm or mode command
+REASONS_WAIT_S = 1.0  # s (vessel clock) after such a command that a refusal waits for the autopilot's reasons
 REOPEN_PERIOD_S = 1.0  # wall seconds between attempts to reopen a lost vehicle link
 DATAGRAM_BYTES = 1200  # MAVLink frames per UDP datagram up to this size (one frame may be larger)
 
@@ -56,6 +59,7 @@ class VesselLinks:
     pipeline: BuoyPipeline | EbotPipeline | MotorboatPipeline
     sensing: EbotSenses | None
     _from_vehicle: list[bytes]
+    _forwarded: list[tuple[AutopilotCommand, float]]  # passed on to the autopilot, not yet answered: (command, sent)
     _last_reading_wall_s: float | None
     _link_lost_at: float | None  # wall clock (time.monotonic) when the vehicle link was lost; None while it is up
     _next_reopen_at: float
@@ -152,6 +156,35 @@ class VesselLinks:
                     self.stats.reading_errors += 1
                     logger.exception("readings could not be fused (%d so far)", self.stats.reading_errors)
 
+    def _answer_forwarded(self) -> None:
+        """Give each ground station's arm, disarm or mode command the autopilot's answer (COMMAND_ACK) once it has
+        come, or MAV_RESULT_FAILED, said, when none came within FORWARDED_ANSWER_S. A refusal is also said with the
+        autopilot's reasons (its "PreArm:" / "Arm:" STATUSTEXTs, which may follow its COMMAND_ACK: waited for up to
+        REASONS_WAIT_S)."""
+        if not self._forwarded:
+            return
+        now = float(self.autopilot.clock())
+        waiting = []
+        for command, sent in self._forwarded:
+            result = self.autopilot.take_ack(command.command, sent)
+            if result is None or result == mavlink.MAV_RESULT_IN_PROGRESS:
+                if now - sent <= FORWARDED_ANSWER_S:
+                    waiting.append((command, sent))
+                    continue
+                result = mavlink.MAV_RESULT_FAILED
+                text = f"vehicle {self.config.system_id} did not answer {command.kind} within {FORWARDED_ANSWER_S:g} s"
+                self._say(mavlink.MAV_SEVERITY_WARNING, text)
+            elif result != mavlink.MAV_RESULT_ACCEPTED:
+                reasons = "; ".join(self.autopilot.texts_since(sent))
+                if not reasons and now - sent <= REASONS_WAIT_S:
+                    waiting.append((command, sent))
+                    continue
+                word, why = RESULT_WORDS.get(result, f"result {result}"), reasons or "no reason given"
+                text = f"vehicle {self.config.system_id} refused {command.kind} ({word}): {why}"
+                self._say(mavlink.MAV_SEVERITY_WARNING, text)
+            self.gcs.answer_autopilot_command(command, result)
+        self._forwarded = waiting
+
     def _pump_and_serve(self, wait_wall_s: float) -> None:
         """Read the vehicle link and serve the ground station (during the start-up, which the GCS sees)."""
         self.pump(wait_wall_s)
@@ -177,9 +210,14 @@ class VesselLinks:
             self._send(frame)
         for command in gcs.take_autopilot_commands():
             if command.kind in ("arm", "disarm"):
-                self._send(self.vehicle.arm(command.kind == "arm"))
+                self._send(self.autopilot.arm(command.kind == "arm", force=command.force))
             elif command.kind == "set_mode" and command.custom_mode is not None:
                 self._send(self.vehicle.set_mode(int(command.custom_mode)))
+            else:  # a mode without a number (none is made so): answered at once, never left in progress
+                gcs.answer_autopilot_command(command, mavlink.MAV_RESULT_UNSUPPORTED)
+                continue
+            self._forwarded.append((command, float(self.autopilot.clock())))
+        self._answer_forwarded()
         gcs.tick()
         own = gcs.outgoing()
         if self.tlog is not None:
