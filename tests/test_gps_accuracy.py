@@ -102,3 +102,23 @@ def test_a_receiver_that_claims_to_be_good_again_too_soon_pulls_the_estimate_les
     held, each = _multipath_error(seed, True), _multipath_error(seed, False)
     print(f"seed {seed}: largest error {held:.2f} m with the envelope, {each:.2f} m without")
     assert held < 0.5 and each > 3 * held
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_fleets_fixes_in_one_call_are_held_as_one_by_one(seed: int) -> None:
+    """45 receivers' fixes of a step in one call (the rows at once) give the same bits as the same fixes in 45
+    calls, over steps with missing reports, repeats and a row more than once."""
+    rng = np.random.default_rng(seed)
+    together, one_by_one = AccuracyEnvelope(45), AccuracyEnvelope(45)
+    for step in range(40):
+        rows = rng.permutation(45)[: int(rng.integers(1, 46))]
+        if step % 7 == 3:
+            rows = np.append(rows, rows[0])  # a receiver twice in the call: taken in turn
+        t = 0.2 * step + rng.uniform(0.0, 0.05, rows.size)
+        accuracy = np.where(rng.random(rows.size) < 0.1, np.nan, rng.uniform(0.3, 20.0, rows.size))
+        speed = np.where(rng.random(rows.size) < 0.1, np.nan, rng.uniform(0.02, 2.0, rows.size))
+        got = np.column_stack(together.apply(rows, t, accuracy, speed))
+        each = [np.column_stack(one_by_one.apply(rows[j : j + 1], t[j : j + 1], accuracy[j : j + 1], speed[j : j + 1]))
+                for j in range(rows.size)]  # fmt: skip
+        assert np.array_equal(got, np.vstack(each), equal_nan=True)
+    assert np.array_equal(together.held, one_by_one.held, equal_nan=True)

@@ -48,15 +48,24 @@ class AccuracyEnvelope:
         if np.isnan(reported).all() and np.isnan(self.held[rows]).all():
             self.last_t_s[rows] = t_s
             return accuracy_m, speed_accuracy_mps  # nothing reported and nothing held: as they came
-        out = np.empty((k, 2))
-        for j, row in enumerate(rows):
-            dt = t_s[j] - self.last_t_s[row]
-            alpha = 1.0 if not np.isfinite(dt) else min(max(DECAY_PER_S * dt, 0.0), 1.0)
-            decayed = self.held[row] * (1.0 - alpha)
-            self.held[row] = np.where(np.isnan(reported[j]), np.nan, np.fmax(decayed, reported[j]))
-            self.last_t_s[row] = t_s[j]
-            out[j] = self.held[row]
+        rows, t_s = np.asarray(rows), np.asarray(t_s, dtype=float).reshape(k)
+        if np.unique(rows).size == k:  # each row once (a fleet's step): all rows at once, the same arithmetic
+            out = self._step(rows, t_s, reported)
+        else:
+            out = np.empty((k, 2))
+            for j in range(k):  # a row twice: in turn, so that it decays between its fixes
+                out[j] = self._step(rows[j : j + 1], t_s[j : j + 1], reported[j : j + 1])[0]
         return (
             None if accuracy_m is None else out[:, 0],
             None if speed_accuracy_mps is None else out[:, 1],
         )
+
+    def _step(self, rows: NDArray[np.intp], t_s: FloatArray, reported: FloatArray) -> FloatArray:
+        """The envelopes (k, 2) of distinct `rows` after reports (k, 2) at t_s (k,), stored."""
+        dt = t_s - self.last_t_s[rows]
+        finite = np.isfinite(dt)
+        alpha = np.where(finite, np.clip(DECAY_PER_S * np.where(finite, dt, 0.0), 0.0, 1.0), 1.0)
+        decayed = self.held[rows] * (1.0 - alpha)[:, None]
+        held = np.where(np.isnan(reported), np.nan, np.fmax(decayed, reported))
+        self.held[rows], self.last_t_s[rows] = held, t_s
+        return held
