@@ -3,6 +3,7 @@
     link = open_link("udpin:0.0.0.0:14550")        # listen; replies go to every live, confirmed peer
     link = open_link("udpout:192.168.1.10:14550")  # send to an address; only that address is heard
     link = open_link("tcp:127.0.0.1:5760")         # connect (e.g. to SITL)
+    link = open_link("udpbcast:192.168.1.255:15000")  # a broadcast mesh on an IP radio: send to all, hear all
     link = open_link("/dev/ttyUSB0", baud=57600)   # serial (pyserial); also COM3 on Windows
 
 Every link has `write(data)`, `read(max_bytes=4096, timeout_s=0.0) -> bytes` (waits at most timeout_s,
@@ -20,6 +21,10 @@ Who a UDP link talks to (issue 17: one datagram must not take a link over):
   `firmware_bridge.decoder.contains_mavlink_frame`). Datagrams from others are still returned (the caller
   decides what to make of them) and counted in `unconfirmed`.
 - udpout: a datagram from any address but the one we send to is dropped and counted in `foreign`.
+- udpbcast: a swarm's mesh on an IP radio (Wi-Fi, or a mesh radio that carries Ethernet): every write goes to
+  the broadcast address, and every datagram to the port is heard, whoever sent it (our own included). It is
+  for the mesh only, whose packets carry their sender's agent id and can be signed with the fleet key
+  (`bob_autonomy.network.mesh_auth`); a vehicle or ground-station link must say whom it talks to.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ __all__ = [
     "LinkError",
     "SerialLink",
     "TcpLink",
+    "UdpBroadcastLink",
     "UdpLink",
     "open_link",
     "parse_connection_string",
@@ -69,17 +75,17 @@ else:  # pragma: no cover - Windows
 
 
 def parse_connection_string(connection: str) -> tuple[str, str, int | None]:
-    """(kind, host or device path, port): kind is "udpin", "udpout", "tcp" or "serial"."""
+    """(kind, host or device path, port): kind is "udpin", "udpout", "udpbcast", "tcp" or "serial"."""
     if not isinstance(connection, str) or not connection.strip():
         raise LinkError(f"empty connection string {connection!r}")
     text = connection.strip()
     if text.startswith("/") or re.fullmatch(r"COM\d+", text, flags=re.IGNORECASE):
         return "serial", text, None
     parts = text.split(":")
-    if len(parts) != 3 or parts[0] not in ("udpin", "udpout", "tcp"):
+    if len(parts) != 3 or parts[0] not in ("udpin", "udpout", "udpbcast", "tcp"):
         raise LinkError(
-            f"bad connection string {connection!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
-            "or a serial device path"
+            f"bad connection string {connection!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
+            "udpbcast:BROADCAST_ADDRESS:PORT, tcp:HOST:PORT or a serial device path"
         )
     kind, host, port_text = parts
     if not host:
@@ -234,6 +240,52 @@ class UdpLink(Link):
         self.sock.close()
 
 
+class UdpBroadcastLink(Link):
+    """udpbcast:ADDRESS:PORT, a broadcast mesh on an IP network (module docstring): bound to PORT on every
+    interface, sharing it with other processes on this host (SO_REUSEADDR, and SO_REUSEPORT where the system has
+    it: several vessels of a simulated fleet on one machine), writing to ADDRESS:PORT with SO_BROADCAST. ADDRESS
+    is the radio subnet's broadcast address (e.g. 192.168.1.255 for 192.168.1.0/24, 255.255.255.255 for the
+    local network, 127.255.255.255 for the vessels of one machine). Our own datagrams come back too."""
+
+    def __init__(self, connection: str, address: str, port: int) -> None:
+        self.connection = connection
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.destination = (socket.gethostbyname(address), port)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if hasattr(socket, "SO_REUSEPORT"):
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            self.sock.bind(("", port))
+        except OSError as exc:
+            self.sock.close()
+            raise LinkError(f"cannot open {connection!r}: {exc}") from exc
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.sock.sendto(bytes(data), self.destination)
+        except OSError as exc:
+            raise LinkError(f"cannot write to {self.connection!r}: {exc}") from exc
+
+    def read_from(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> tuple[bytes, Address | None]:
+        """One datagram (cut to max_bytes) and its sender, waiting at most timeout_s; (b"", None) if none."""
+        try:
+            if not _wait_readable(self.sock, timeout_s):
+                return b"", None
+            data, sender = self.sock.recvfrom(65535)
+        except ConnectionRefusedError:
+            return b"", None  # an ICMP "port unreachable" from an earlier send: nothing to read
+        except OSError as exc:
+            raise LinkError(f"cannot read from {self.connection!r}: {exc}") from exc
+        return data[:max_bytes], sender
+
+    def read(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> bytes:
+        return self.read_from(max_bytes, timeout_s)[0]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
 class TcpLink(Link):
     """A TCP client connection."""
 
@@ -308,4 +360,6 @@ def open_link(connection_string: str, baud: int = 115200, connect_timeout_s: flo
     assert port is not None
     if kind == "tcp":
         return TcpLink(connection_string, where, port, connect_timeout_s)
+    if kind == "udpbcast":
+        return UdpBroadcastLink(connection_string, where, port)
     return UdpLink(connection_string, kind, where, port)

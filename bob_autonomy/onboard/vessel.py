@@ -49,7 +49,7 @@ from bob_autonomy.onboard.vessel_driving import AutopilotDriving
 from bob_autonomy.onboard.vessel_links import VesselLinks
 from bob_autonomy.onboard.vessel_pipelines import buoy_pipeline, ebot_pipeline, motorboat_pipeline
 from firmware_bridge.commands import heartbeat
-from firmware_bridge.links import Link, open_link
+from firmware_bridge.links import Link, UdpBroadcastLink, open_link, parse_connection_string
 from firmware_bridge.tlog import TlogWriter
 
 logger = logging.getLogger(__name__)
@@ -230,6 +230,12 @@ class Vessel(VesselLinks, AutopilotDriving):
         c = config
         if c.on_stop not in ON_STOP_ACTIONS:
             raise ValueError(f"on_stop must be one of {', '.join(ON_STOP_ACTIONS)}, got {c.on_stop!r}")
+        for role, connection in (("vehicle", c.vehicle), ("ground-station", c.gcs)):
+            if connection and parse_connection_string(connection)[0] == "udpbcast":
+                raise ValueError(
+                    f"{role} link {connection!r}: udpbcast is for the swarm's mesh only (--mesh); a {role} link "
+                    "talks to one peer: use udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT or a serial device"
+                )
         if c.kind == BUOY:
             model = BuoyModel() if c.top_speed_mps is None else BuoyModel.for_top_speed(c.top_speed_mps)
             self.max_actuator = model.max_thrust_n
@@ -273,6 +279,12 @@ class Vessel(VesselLinks, AutopilotDriving):
         self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
         self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
         mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
+        if isinstance(self.mesh_link, UdpBroadcastLink) and mesh_key is None:
+            logger.warning(
+                "mesh %s is open: any host on that network can broadcast as a member of the swarm; give the "
+                "fleet key with --mesh-key (docs/mesh.md)",
+                c.mesh,
+            )
         network = (
             ThrottledMesh(
                 LinkMesh(self.mesh_link, c.agent_id, c.memory_fields, self.clock.now, key=mesh_key),

@@ -93,10 +93,21 @@ class Observation:
 
 
 class RoverSitl:
-    """One ArduPilot Rover SITL process and an observer on its SERIAL1. Use as a context manager."""
+    """One ArduPilot Rover SITL process and an observer on its SERIAL1. Use as a context manager. home: where the
+    vehicle starts (lat, lon deg, alt m, heading deg); params: parameters over the model's defaults (its system id
+    is MAV_SYSID there, 1 by default; SYSID_THISMAV before ArduPilot 4.7)."""
 
-    def __init__(self, binary: Path, model: str, workdir: Path, *, params: dict[str, float] | None = None) -> None:
-        self.binary, self.workdir = binary, workdir
+    def __init__(
+        self,
+        binary: Path,
+        model: str,
+        workdir: Path,
+        *,
+        params: dict[str, float] | None = None,
+        home: tuple[float, float, float, float] = HOME,
+    ) -> None:
+        self.binary, self.workdir, self.home = binary, workdir, home
+        self.system_id = int((params or {}).get("MAV_SYSID", 1))
         self.model, parm_files = MODELS[model]
         self.instance = free_instance()
         self.serial0 = 5760 + 10 * self.instance
@@ -113,7 +124,7 @@ class RoverSitl:
         self._thread: threading.Thread | None = None
 
     def __enter__(self) -> RoverSitl:
-        home = ",".join(str(v) for v in HOME)
+        home = ",".join(str(v) for v in self.home)
         command = [
             str(self.binary),
             "-w",
@@ -152,7 +163,7 @@ class RoverSitl:
             if now - asked > 2.0:
                 asked = now
                 for msg_id, hz in ((65, 10), (36, 5), (33, 10)):  # RC_CHANNELS, SERVO_OUTPUT_RAW, GLOBAL_POSITION_INT
-                    obs.mav.command_long_send(1, 1, 511, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
+                    obs.mav.command_long_send(self.system_id, 1, 511, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
             try:
                 msg = obs.recv_match(blocking=True, timeout=0.2)
             except (OSError, ConnectionError):
@@ -245,6 +256,14 @@ def drive(sitl: RoverSitl, config, seconds: float):
             errors.append(float(np.hypot(*(estimate - truth))))
     thread.join()
     return track, errors, vessel
+
+
+def home_at(east_m: float, north_m: float) -> tuple[float, float, float, float]:
+    """A SITL home east_m, north_m from HOME (the inverse of `local_xy`), same altitude and heading."""
+    r = 6378137.0
+    lat = HOME[0] + math.degrees(north_m / r)
+    lon = HOME[1] + math.degrees(east_m / (r * math.cos(math.radians(HOME[0]))))
+    return (lat, lon, HOME[2], HOME[3])
 
 
 def local_xy(lat: float, lon: float) -> tuple[float, float]:

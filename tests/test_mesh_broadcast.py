@@ -1,0 +1,103 @@
+"""The swarm's mesh over UDP broadcast (`udpbcast:ADDRESS:PORT`, firmware_bridge.links.UdpBroadcastLink), as on
+an IP radio (Wi-Fi, or a mesh radio carrying Ethernet): real sockets sharing one port, datagrams to this host's
+loopback broadcast address 127.255.255.255, which the kernel delivers to every socket bound to the port."""
+
+from __future__ import annotations
+
+import hashlib
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from bob_autonomy.cli import main
+from bob_autonomy.core.interfaces import AgentState, Pose
+from bob_autonomy.network.mesh import LinkMesh, encode_state
+from firmware_bridge.links import LinkError, UdpBroadcastLink, open_link, parse_connection_string
+
+KEY = hashlib.sha256(b"fleet key").digest()
+BROADCAST = "127.255.255.255"
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("", 0))
+        return s.getsockname()[1]
+
+
+def state(agent_id: int, x: float) -> AgentState:
+    return AgentState(agent_id, 5.0, Pose(x, -4.0, 0.5, 0.2, -0.1), {"goal": np.array([1.0, 2.0])})
+
+
+def heard(mesh: LinkMesh, count: int, timeout_s: float = 2.0) -> list[AgentState]:
+    """What `mesh` receives until it has `count` states or `timeout_s` passed (datagrams take a moment)."""
+    states: list[AgentState] = []
+    end = time.monotonic() + timeout_s
+    while len(states) < count and time.monotonic() < end:
+        states += mesh.receive()
+        time.sleep(0.01)
+    return states
+
+
+def test_udpbcast_connection_strings() -> None:
+    assert parse_connection_string("udpbcast:192.168.1.255:15000") == ("udpbcast", "192.168.1.255", 15000)
+    for bad in ("udpbcast:192.168.1.255", "udpbcast::15000", "udpbcast:192.168.1.255:0"):
+        with pytest.raises(LinkError, match="bad connection string"):
+            parse_connection_string(bad)
+
+
+def test_every_member_hears_every_other_and_never_itself() -> None:
+    port = free_udp_port()
+    links = [open_link(f"udpbcast:{BROADCAST}:{port}") for _ in range(3)]
+    try:
+        assert all(isinstance(link, UdpBroadcastLink) for link in links)
+        meshes = [LinkMesh(link, agent, ["goal"], lambda: 0.0) for agent, link in enumerate(links)]
+        for agent, mesh in enumerate(meshes):
+            mesh.broadcast(state(agent, x=10.0 * agent))
+        for agent, mesh in enumerate(meshes):
+            states = heard(mesh, 2)
+            others = sorted((s.agent_id, s.pose.x) for s in states)
+            assert others == [(a, 10.0 * a) for a in range(3) if a != agent], f"agent {agent} heard {others}"
+            assert mesh.received == 2 and mesh.sent == 1
+            assert mesh.receive() == []  # its own broadcast came back too, and was dropped
+    finally:
+        for link in links:
+            link.close()
+
+
+def test_a_keyed_broadcast_mesh_refuses_a_member_without_the_key() -> None:
+    """On a broadcast network anyone in radio range can send to the port: the fleet key is what keeps them out."""
+    port = free_udp_port()
+    with (
+        open_link(f"udpbcast:{BROADCAST}:{port}") as a,
+        open_link(f"udpbcast:{BROADCAST}:{port}") as b,
+        open_link(f"udpout:{BROADCAST}:{port}") as outsider,
+    ):
+        member_a = LinkMesh(a, 1, ["goal"], lambda: 0.0, key=KEY)
+        member_b = LinkMesh(b, 2, ["goal"], lambda: 0.0, key=KEY)
+        with pytest.raises(LinkError, match="Permission denied"):  # a plain socket may not even send there
+            outsider.write(encode_state(state(0, x=300.0), ["goal"]))
+        outsider.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        outsider.write(encode_state(state(0, x=300.0), ["goal"]))  # a keyless radio claiming to be agent 0
+        member_a.broadcast(state(1, x=1.0))
+        states = heard(member_b, 1)
+        time.sleep(0.05)
+        states += member_b.receive()
+        assert [(s.agent_id, s.pose.x) for s in states] == [(1, 1.0)]
+        assert {reason: n for reason, n in member_b.counters()["rejected"].items() if n} == {"unsigned": {"0": 1}}
+
+
+@pytest.mark.parametrize("role", ["--vehicle", "--gcs"])
+def test_udpbcast_is_refused_for_the_vehicle_and_the_ground_station(role, capsys, tmp_path) -> None:
+    """A link to an autopilot or a ground station talks to one peer; one that hears every host on the network
+    would let any of them command the vessel."""
+    links = {"--vehicle": "udpout:127.0.0.1:9", "--gcs": None}
+    links[role] = f"udpbcast:{BROADCAST}:{free_udp_port()}"
+    argv = ["run", "--system-id", "1", "--origin", "1.3,103.8", "--behavior", "bob-rule"]
+    argv += ["--log-file", str(tmp_path / "vessel.log")]
+    for option, value in links.items():
+        argv += [option, value] if value else []
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert "udpbcast is for the swarm's mesh only" in error and "use udpout:HOST:PORT" in error
