@@ -60,7 +60,9 @@ def test_every_member_hears_every_other_and_never_itself() -> None:
             others = sorted((s.agent_id, s.pose.x) for s in states)
             assert others == [(a, 10.0 * a) for a in range(3) if a != agent], f"agent {agent} heard {others}"
             assert mesh.received == 2 and mesh.sent == 1
-            assert mesh.receive() == []  # its own broadcast came back too, and was dropped
+            time.sleep(0.02)
+            assert mesh.receive() == []  # its own broadcast came back too, and was dropped as an echo
+            assert (mesh.echoes, mesh.same_id) == (1, 0)
     finally:
         for link in links:
             link.close()
@@ -86,6 +88,22 @@ def test_a_keyed_broadcast_mesh_refuses_a_member_without_the_key() -> None:
         states += member_b.receive()
         assert [(s.agent_id, s.pose.x) for s in states] == [(1, 1.0)]
         assert {reason: n for reason, n in member_b.counters()["rejected"].items() if n} == {"unsigned": {"0": 1}}
+
+
+def test_two_vessels_with_one_system_id_are_told_why_they_hear_nothing_of_each_other(caplog) -> None:
+    """Every ArduPilot leaves the factory as MAVLink system 1, and each autonomy's agent id is its system id - 1:
+    two vessels nobody renumbered drop each other's packets as their own. They say so."""
+    port = free_udp_port()
+    with open_link(f"udpbcast:{BROADCAST}:{port}") as a, open_link(f"udpbcast:{BROADCAST}:{port}") as b:
+        first, second = (LinkMesh(link, 0, ["goal"], lambda: 0.0) for link in (a, b))
+        first.broadcast(state(0, x=1.0))
+        second.broadcast(state(0, x=2.0))
+        time.sleep(0.1)
+        assert first.receive() == [] and second.receive() == []
+        assert [(m.echoes, m.same_id) for m in (first, second)] == [(1, 1), (1, 1)]
+        assert second.counters()["same_id"] == 1
+    warnings = [r.getMessage() for r in caplog.records if "our agent id 0" in r.getMessage()]
+    assert len(warnings) == 2 and "MAVLink system id 1" in warnings[0] and "MAV_SYSID" in warnings[0]
 
 
 @pytest.mark.parametrize("role", ["--vehicle", "--gcs"])

@@ -33,6 +33,7 @@ import binascii
 import logging
 import math
 import struct
+from collections import deque
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -236,6 +237,9 @@ class PacketReader:
         del self._buf[:1]
 
 
+RECENT_SENT = 8  # own packets remembered, to tell our own echo (a broadcast comes back) from another radio
+
+
 class LinkMesh:
     """A broadcast network (the `Network` protocol) over a byte link: a UDP socket to a radio relay or a
     broadcast address, or a serial XBee. `fields`: the swarm's memory field names, in order. `clock`: the
@@ -247,7 +251,10 @@ class LinkMesh:
     `verifier.rejected` by reason and claimed sender, and logged (the first ten, then every thousandth).
     mesh_clock: the shared time base of the timestamps (`unix_mesh_clock`, UTC, on a vessel).
 
-    Own packets echoed back are ignored; noise and broken packets are counted in `reader.bad`, well-formed
+    Own packets echoed back are ignored (counted in `echoes`). A packet with our agent id that we did not send is
+    never a neighbour either; it is counted in `same_id` and logged: another vessel with our system id (each
+    autonomy's agent id is its vehicle's MAVLink system id - 1, so two autopilots both left at MAV_SYSID 1 never
+    hear each other), or a radio sending as us. Noise and broken packets are counted in `reader.bad`, well-formed
     packets that cannot be decoded in `invalid`, of which those with a value out of range (NaN pose, ...)
     also in `out_of_range`: none of them is ever returned."""
 
@@ -270,12 +277,17 @@ class LinkMesh:
         self.invalid = 0
         self.out_of_range = 0
         self.send_errors = 0
+        self.echoes = 0
+        self.same_id = 0
+        self._recent_sent: deque[bytes] = deque(maxlen=RECENT_SENT)
         self._refused_logged = 0
 
     def broadcast(self, state: AgentState) -> None:
         try:
-            self.link.write(encode_state(state, self.fields, self.signer))
+            packet = encode_state(state, self.fields, self.signer)
+            self.link.write(packet)
             self.sent += 1
+            self._recent_sent.append(packet)
         except OSError as error:  # the radio is down: count and carry on, the swarm tolerates lost packets
             self.send_errors += 1
             logger.warning("mesh send failed (%d so far): %s", self.send_errors, error)
@@ -293,7 +305,8 @@ class LinkMesh:
             valid = False
             for packet in self.reader.feed(data):
                 if header_agent_id(packet) == self.agent_id:
-                    continue  # our own packet echoed (or someone using our id): never a neighbour
+                    self._our_id(packet)  # never a neighbour
+                    continue
                 if self.verifier is not None and not self._authentic(packet):
                     continue
                 try:
@@ -312,6 +325,21 @@ class LinkMesh:
                 self.link.confirm_peer(sender)  # a udpin mesh link answers only senders of valid packets
         return states
 
+    def _our_id(self, packet: bytes) -> None:
+        if bytes(packet) in self._recent_sent:
+            self.echoes += 1
+            return
+        self.same_id += 1
+        if self.same_id <= 3 or self.same_id % 1000 == 0:
+            logger.warning(
+                "mesh packet from another radio with our agent id %d (%d so far): is another vessel's autopilot on "
+                "our MAVLink system id %d? Give each vessel its own (MAV_SYSID); a radio sending as us is refused "
+                "the same way",
+                self.agent_id,
+                self.same_id,
+                self.agent_id + 1,
+            )
+
     def _authentic(self, packet: bytes) -> bool:
         try:
             self.verifier.check(header_agent_id(packet), signed_part(packet))
@@ -325,6 +353,7 @@ class LinkMesh:
     def counters(self) -> dict:
         """What the mesh sent, received and refused, for the vessel's log: sent, received (neighbour states
         returned), invalid and out_of_range (see the class docstring), noise (broken frames), send_errors,
+        echoes (our own packets back) and same_id (another radio's with our agent id),
         and with a key `rejected`: reason -> {claimed agent id -> packets}
         (`bob_autonomy.network.mesh_auth.REASONS`)."""
         out: dict = {
@@ -334,6 +363,8 @@ class LinkMesh:
             "out_of_range": self.out_of_range,
             "noise": self.reader.bad,
             "send_errors": self.send_errors,
+            "echoes": self.echoes,
+            "same_id": self.same_id,
         }
         if self.verifier is not None:
             out["rejected"] = self.verifier.counters()
