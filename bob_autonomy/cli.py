@@ -94,7 +94,14 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--baud", type=int, default=115200, help="serial baud rate")
     run.add_argument("--system-id", type=int, help="the vehicle's MAVLink system id, agent = id - 1 (required)")
     run.add_argument("--kind", choices=["buoy", "motorboat", "ebot"], default="buoy")
-    run.add_argument("--mesh", help="swarm mesh link, e.g. udpout:127.0.0.1:15000 (none: the agent acts alone)")
+    run.add_argument(
+        "--mesh",
+        help="swarm mesh link: an XBee's serial port (/dev/ttyUSB1), an IP radio's broadcast "
+        "(udpbcast:192.168.1.255:15000) or the simulator's relay (udpout:127.0.0.1:15000); none: the agent acts alone",
+    )
+    run.add_argument(
+        "--mesh-baud", type=int, default=115200, help="the mesh's serial baud rate (an XBee's BD: 7 is 115200)"
+    )
     behavior = run.add_mutually_exclusive_group()
     behavior.add_argument("--behavior", help="behaviour name (see `bob-autonomy behaviors`; one of the two required)")
     behavior.add_argument("--behavior-json", help='{"behavior": NAME, "params": {...}, "avoid_obstacles": false}')
@@ -332,6 +339,7 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         system_id=args.system_id,
         kind=args.kind,
         mesh=args.mesh,
+        mesh_baud=args.mesh_baud,
         behavior=choice,
         memory_fields=tuple(fields),
         origin=args.origin,

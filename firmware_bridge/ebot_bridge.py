@@ -38,7 +38,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from firmware_bridge import commands
 from firmware_bridge.decoder import TelemetryDecoder, wrap_angle
 from firmware_bridge.ebot_serial import EBOT_BAUD, EbotProtocolError, EbotSerial, ImuSample, Pose, wheel_command
-from firmware_bridge.links import LinkError, open_link
+from firmware_bridge.links import LinkError, open_link, parse_connection_string
 
 __all__ = ["EBOT_SONAR_ANGLES_DEG", "BridgeCounters", "ByteLink", "EbotMavlinkBridge", "main"]
 
@@ -381,7 +381,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--serial", required=True, help="the eBot's serial device, e.g. /dev/ttyUSB0 or /dev/rfcomm0")
     parser.add_argument("--baud", type=int, default=EBOT_BAUD, help="serial baud rate (default 115200)")
     parser.add_argument(
-        "--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink link: udpin:/udpout:/tcp:HOST:PORT or a device"
+        "--mavlink",
+        default="udpin:0.0.0.0:14550",
+        type=_one_peer_link,
+        help="MAVLink link: udpin:/udpout:/tcp:HOST:PORT or a device",
     )
     parser.add_argument("--system-id", type=int, default=1, help="our MAVLink system id (default 1)")
     parser.add_argument("--failsafe-s", type=float, default=1.0, help="halt after this long without commands (s)")
@@ -390,6 +393,17 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--handshake-timeout-s", type=float, default=3.0, help="handshake timeout (s)")
     parser.add_argument("--no-arming", action="store_true", help="drive without being armed first")
     return parser
+
+
+def _one_peer_link(connection: str) -> str:
+    """argparse type of --mavlink: a link to one peer (a broadcast link would take commands from every host)."""
+    try:
+        kind = parse_connection_string(connection)[0]
+    except LinkError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    if kind == "udpbcast":
+        raise argparse.ArgumentTypeError(f"{connection!r}: udpbcast is for a swarm's mesh, not a vehicle's link")
+    return connection
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -182,6 +182,7 @@ def test_the_example_service_config_parses() -> None:
     args = _apply_config_file(_parser(), ["run", "--config", "docs/vessel.toml", "--system-id", "9"])
     config = config_from_args(args)
     assert config.system_id == 9 and config.vehicle == "/dev/ttyAMA0" and config.baud == 57600
+    assert config.mesh == "/dev/ttyUSB0" and config.mesh_baud == 115200
     assert config.behavior.params == {"p0": 10, "H": 0} and not config.autostart
     assert config.memory_fields == ("goal",) and config.origin == (1.3405, 103.956)
 

@@ -89,6 +89,7 @@ class VesselConfig:
     origin: tuple[float, float]
     kind: str = BUOY
     mesh: str | None = None
+    mesh_baud: int = 115200  # a serial mesh's (an XBee's) baud rate
     memory_fields: tuple[str, ...] = ()
     time_scale: float = 1.0
     dt_s: float = 0.1
@@ -277,7 +278,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         )
         self.vehicle.decoder.message_hook = self._vehicle_message
         self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
-        self.mesh_link: Link | None = open_link(c.mesh) if c.mesh else None
+        self.mesh_link: Link | None = open_link(c.mesh, c.mesh_baud) if c.mesh else None
         mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
         if isinstance(self.mesh_link, UdpBroadcastLink) and mesh_key is None:
             logger.warning(
