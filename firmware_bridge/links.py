@@ -29,6 +29,8 @@ Who a UDP link talks to (issue 17: one datagram must not take a link over):
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import re
 import select
 import socket
@@ -40,10 +42,13 @@ import serial
 
 from firmware_bridge.decoder import contains_mavlink_frame
 
+logger = logging.getLogger(__name__)
+
 __all__ = [
     "PEER_TIMEOUT_S",
     "Link",
     "LinkError",
+    "ReopeningLink",
     "SerialLink",
     "TcpLink",
     "UdpBroadcastLink",
@@ -349,6 +354,79 @@ class SerialLink(Link):
 
     def close(self) -> None:
         self.port.close()
+
+
+class ReopeningLink(Link):
+    """A link that outlives its port: closed at its first error, then opened again by `opener` every `period_s`
+    until it opens (a USB serial adapter shaken loose and plugged in again, a network interface down and up). What
+    passes meanwhile is lost: a read returns nothing, a write raises LinkError. Said once when lost and once when
+    back (logged), counted in `losses` and `reopens`. The first open is `opener()` as is: it raises LinkError."""
+
+    def __init__(self, opener: Callable[[], Link], period_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
+        self._opener, self.period_s, self.clock = opener, float(period_s), clock
+        self.link: Link | None = opener()
+        self.connection = self.link.connection
+        self.losses = 0
+        self.reopens = 0
+        self._lost_at = 0.0
+        self._next_try = 0.0
+        self._closed = False
+
+    def _lose(self, error: OSError) -> None:
+        self.losses += 1
+        self._lost_at = float(self.clock())
+        self._next_try = self._lost_at + self.period_s
+        with contextlib.suppress(OSError):
+            self.link.close()
+        self.link = None
+        logger.warning("%s lost (%s); reopening it every %g s", self.connection, error, self.period_s)
+
+    def _open(self) -> bool:
+        """Whether there is a link to use, after an attempt to reopen it if one is due."""
+        if self.link is not None or self._closed:
+            return self.link is not None
+        now = float(self.clock())
+        if now < self._next_try:
+            return False
+        self._next_try = now + self.period_s
+        try:
+            self.link = self._opener()
+        except OSError:
+            return False
+        self.reopens += 1
+        logger.warning("%s reopened after %.1f s", self.connection, now - self._lost_at)
+        return True
+
+    def write(self, data: bytes) -> None:
+        if not self._open():
+            raise LinkError(f"cannot write to {self.connection!r}: lost, reopening every {self.period_s:g} s")
+        try:
+            self.link.write(data)
+        except OSError as error:
+            self._lose(error)
+            raise
+
+    def read_from(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> tuple[bytes, Address | None]:
+        if not self._open():
+            return b"", None
+        try:
+            return self.link.read_from(max_bytes, timeout_s)
+        except OSError as error:
+            self._lose(error)
+            return b"", None
+
+    def read(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> bytes:
+        return self.read_from(max_bytes, timeout_s)[0]
+
+    def confirm_peer(self, sender: Address | None) -> None:
+        if self.link is not None:
+            self.link.confirm_peer(sender)
+
+    def close(self) -> None:
+        self._closed = True
+        if self.link is not None:
+            self.link.close()
+            self.link = None
 
 
 def open_link(connection_string: str, baud: int = 115200, connect_timeout_s: float = 5.0) -> Link:

@@ -16,15 +16,16 @@ import socket
 import sys
 import threading
 import time
+import tty
 
 import numpy as np
 import pytest
 
 from bob_autonomy.cli import main
 from bob_autonomy.core.interfaces import AgentState, Pose
-from bob_autonomy.network.mesh import LinkMesh, encode_state
+from bob_autonomy.network.mesh import LinkMesh, encode_state, packet_agent_id
 from firmware_bridge import ebot_bridge
-from firmware_bridge.links import LinkError, UdpBroadcastLink, open_link, parse_connection_string
+from firmware_bridge.links import LinkError, ReopeningLink, UdpBroadcastLink, open_link, parse_connection_string
 
 KEY = hashlib.sha256(b"fleet key").digest()
 BROADCAST = "127.255.255.255"
@@ -252,9 +253,73 @@ def test_a_vessel_opens_its_xbee_at_the_mesh_baud_rate_not_the_vehicles() -> Non
     )
     vessel = Vessel(config)
     try:
-        assert vessel.mesh_link.port.baudrate == 9600
+        assert vessel.mesh_link.link.port.baudrate == 9600
     finally:
         for link in (vessel.vehicle_link, vessel.mesh_link):
             link.close()
         os.close(master)
         os.close(slave)
+
+
+class PluggedXbee:
+    """An XBee on a USB serial adapter, reached by a stable path (as udev's /dev/serial/by-id/ names it): `master`
+    is the radio's side. `unplug()` closes it under the vessel and removes the path; `replug()` brings a new one
+    behind the same path."""
+
+    def __init__(self, path) -> None:
+        self.path = path
+        self.master: int | None = None
+        self.replug()
+
+    def replug(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.symlink(os.ttyname(slave), self.path)
+        os.close(slave)  # the vessel opens it by the path
+        self.master = master
+
+    def unplug(self) -> None:
+        os.close(self.master)
+        self.master = None
+        os.unlink(self.path)
+
+    def sent(self, timeout_s: float = 2.0) -> bytes:
+        """What the vessel wrote to the radio, waiting up to timeout_s for the first bytes."""
+        ready, _, _ = select.select([self.master], [], [], timeout_s)
+        return os.read(self.master, 4096) if ready else b""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
+def test_an_xbee_shaken_loose_is_reopened_by_its_path_and_the_mesh_goes_on(tmp_path, caplog) -> None:
+    xbee = PluggedXbee(tmp_path / "ttyXBEE")
+    link = ReopeningLink(lambda: open_link(str(xbee.path), baud=115200), period_s=0.2)
+    mesh = LinkMesh(link, 1, ["goal"], lambda: 0.0)
+    try:
+        mesh.broadcast(state(1, x=1.0))
+        assert packet_agent_id(xbee.sent()) == 1
+        os.write(xbee.master, encode_state(state(0, x=5.0), ["goal"]))
+        assert [s.pose.x for s in heard(mesh, 1)] == [5.0]
+
+        xbee.unplug()
+        for step in range(6):  # the vessel's loop goes on: nothing raises, nothing is heard
+            mesh.broadcast(state(1, x=2.0 + step))
+            assert mesh.receive() == []
+            time.sleep(0.1)
+        assert link.losses == 1 and link.reopens == 0 and mesh.send_errors >= 1
+
+        xbee.replug()
+        end = time.monotonic() + 3.0
+        while link.reopens == 0 and time.monotonic() < end:
+            mesh.receive()
+            time.sleep(0.05)
+        assert link.reopens == 1
+        os.write(xbee.master, encode_state(state(0, x=6.0), ["goal"]))
+        assert [s.pose.x for s in heard(mesh, 1)] == [6.0]
+        mesh.broadcast(state(1, x=9.0))
+        assert packet_agent_id(xbee.sent()) == 1
+    finally:
+        link.close()
+        if xbee.master is not None:
+            xbee.unplug()
+    said = [r.getMessage() for r in caplog.records if r.name == "firmware_bridge.links"]
+    assert len(said) == 2 and "lost" in said[0] and "reopened after" in said[1], said

@@ -290,7 +290,8 @@ class LinkMesh:
             self._recent_sent.append(packet)
         except OSError as error:  # the radio is down: count and carry on, the swarm tolerates lost packets
             self.send_errors += 1
-            logger.warning("mesh send failed (%d so far): %s", self.send_errors, error)
+            if self.send_errors <= 3 or self.send_errors % 1000 == 0:
+                logger.warning("mesh send failed (%d so far): %s", self.send_errors, error)
 
     def receive(self) -> list[AgentState]:
         states: list[AgentState] = []

@@ -49,7 +49,7 @@ from bob_autonomy.onboard.vessel_driving import AutopilotDriving
 from bob_autonomy.onboard.vessel_links import VesselLinks
 from bob_autonomy.onboard.vessel_pipelines import buoy_pipeline, ebot_pipeline, motorboat_pipeline
 from firmware_bridge.commands import heartbeat
-from firmware_bridge.links import Link, UdpBroadcastLink, open_link, parse_connection_string
+from firmware_bridge.links import Link, ReopeningLink, UdpBroadcastLink, open_link, parse_connection_string
 from firmware_bridge.tlog import TlogWriter
 
 logger = logging.getLogger(__name__)
@@ -278,9 +278,10 @@ class Vessel(VesselLinks, AutopilotDriving):
         )
         self.vehicle.decoder.message_hook = self._vehicle_message
         self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
-        self.mesh_link: Link | None = open_link(c.mesh, c.mesh_baud) if c.mesh else None
+        # A serial XBee shaken loose from its USB socket, or an IP radio's interface down, comes back by itself.
+        self.mesh_link = ReopeningLink(lambda: open_link(c.mesh, c.mesh_baud)) if c.mesh else None
         mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
-        if isinstance(self.mesh_link, UdpBroadcastLink) and mesh_key is None:
+        if isinstance(self.mesh_link and self.mesh_link.link, UdpBroadcastLink) and mesh_key is None:
             logger.warning(
                 "mesh %s is open: any host on that network can broadcast as a member of the swarm; give the "
                 "fleet key with --mesh-key (docs/mesh.md)",
@@ -640,4 +641,5 @@ class Vessel(VesselLinks, AutopilotDriving):
         logger.info("vessel %d stopped: %s", self.config.system_id, json.dumps(self.stats.summary()))
         if isinstance(self.network, ThrottledMesh):  # what the mesh refused, and why (docs/mesh.md)
             mesh = {**self.network.inner.counters(), "implausible": self.agent.neighbors.counters()}
+            mesh.update(link_lost=self.mesh_link.losses, link_reopened=self.mesh_link.reopens)
             logger.info("vessel %d mesh: %s", self.config.system_id, json.dumps(mesh))
