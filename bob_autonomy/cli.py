@@ -122,7 +122,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--vehicle-timeout", type=float, default=3.0, help="vehicle lost after this long with no HEARTBEAT, s"
     )
-    run.add_argument("--gcs", help="ground-station link, e.g. udpout:10.0.0.1:14550 or udpin:0.0.0.0:14560")
+    run.add_argument(
+        "--gcs",
+        help="ground-station link, e.g. udpout:10.0.0.1:14550, udpin:0.0.0.0:14560 or a telemetry radio's serial port",
+    )
+    run.add_argument("--gcs-baud", type=int, default=57600, help="a serial ground-station link's baud rate")
     run.add_argument("--params-file", help="persistent parameters (JSON, written atomically); default: in memory")
     run.add_argument("--signing-key", help="MAVLink 2 signing key file (see docs/gcs-protocol.md)")
     run.add_argument("--mesh-key", help="fleet key file: sign and check every mesh packet (docs/mesh.md)")
@@ -353,6 +357,7 @@ def config_from_args(args: argparse.Namespace) -> VesselConfig:
         max_thrust_fraction=args.max_thrust_fraction,
         heartbeat_timeout_s=args.vehicle_timeout,
         gcs=args.gcs,
+        gcs_baud=args.gcs_baud,
         params_file=args.params_file,
         signing_key_file=args.signing_key,
         mesh_key_file=args.mesh_key,

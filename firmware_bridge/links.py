@@ -358,9 +358,12 @@ class SerialLink(Link):
 
 class ReopeningLink(Link):
     """A link that outlives its port: closed at its first error, then opened again by `opener` every `period_s`
-    until it opens (a USB serial adapter shaken loose and plugged in again, a network interface down and up). What
-    passes meanwhile is lost: a read returns nothing, a write raises LinkError. Said once when lost and once when
-    back (logged), counted in `losses` and `reopens`. The first open is `opener()` as is: it raises LinkError."""
+    until it opens (a USB serial adapter shaken loose and plugged in again, a network interface down and up). The
+    write or read that failed raises or returns nothing as the link did; what passes after it until the link is
+    back is lost: a read returns nothing, a write is dropped (counted in `dropped_writes`), so a loop that writes
+    every period is not told at every write. Said once when lost and once when back (logged), counted in `losses`
+    and `reopens`. The first open is `opener()` as is: it raises LinkError. Other attributes are the open link's
+    (`local_address`, `peers` of a UDP link)."""
 
     def __init__(self, opener: Callable[[], Link], period_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
         self._opener, self.period_s, self.clock = opener, float(period_s), clock
@@ -368,6 +371,7 @@ class ReopeningLink(Link):
         self.connection = self.link.connection
         self.losses = 0
         self.reopens = 0
+        self.dropped_writes = 0
         self._lost_at = 0.0
         self._next_try = 0.0
         self._closed = False
@@ -397,9 +401,16 @@ class ReopeningLink(Link):
         logger.warning("%s reopened after %.1f s", self.connection, now - self._lost_at)
         return True
 
+    def __getattr__(self, name: str):
+        link = self.__dict__.get("link")
+        if link is None:
+            raise AttributeError(f"{type(self).__name__} of {self.__dict__.get('connection')!r} has no {name!r} now")
+        return getattr(link, name)
+
     def write(self, data: bytes) -> None:
         if not self._open():
-            raise LinkError(f"cannot write to {self.connection!r}: lost, reopening every {self.period_s:g} s")
+            self.dropped_writes += 1
+            return
         try:
             self.link.write(data)
         except OSError as error:

@@ -9,6 +9,7 @@ never drove again, and took a disarmed vehicle for one it was driving.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import socket
@@ -421,3 +422,52 @@ def test_the_gps_lag_is_a_setting_of_the_vessel_config_file_within_0_to_1_s(tmp_
     for bad in ("-0.1", "2"):
         with pytest.raises(ValueError, match=rf"--gps-lag {float(bad)}: must be within 0..1 s"):
             _apply_config_file(_parser(), ["run", "--config", str(path), "--gps-lag", bad])
+
+
+def test_a_telemetry_radio_shaken_loose_is_reopened_and_the_ground_station_hears_the_vessel_again(
+    tmp_path, caplog
+) -> None:
+    """The ground-station link on a serial telemetry radio (a SiK on USB): unplugged, said once and nothing more
+    at each loop; plugged in again behind the same path, reopened within a second and heard again."""
+    vehicle = StandInVehicle()
+    vehicle.start()
+    ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ground.bind(("127.0.0.1", 0))
+    radio = PtyBridge(ground.getsockname()[1], tmp_path / "ttyRADIO")
+    radio.start()
+    config = replace(_config(0), vehicle=f"udpout:127.0.0.1:{vehicle.port}", gcs=str(radio.path), gcs_baud=57600)
+    vessel = Vessel(config, clock=ScaledWallClock(SCALE))
+
+    def heard(timeout_s: float) -> bool:
+        """Whether a frame from the vessel reaches the ground station within timeout_s (anything older dropped)."""
+        ground.setblocking(False)
+        with contextlib.suppress(BlockingIOError):
+            while ground.recv(65535):
+                pass
+        ground.settimeout(timeout_s)
+        try:
+            return bool(ground.recv(65535))
+        except TimeoutError:
+            return False
+
+    runner = _run(vessel, 200.0)
+    try:
+        _wait(lambda: vehicle.vehicle.armed and vessel.stats.commands > 20, 20.0, "the vessel never drove")
+        assert heard(2.0)
+        radio.unplug()
+        time.sleep(2.0)  # twenty loops, and several attempts to reopen a path that is gone
+        assert not heard(0.5)
+        errors_unplugged = vessel.stats.link_errors
+        radio.replug()
+        _wait(lambda: vessel.gcs_link.reopens == 1, 5.0, "the radio was not reopened")
+        assert heard(3.0), "the ground station did not hear the vessel again"
+        assert vehicle.vehicle.armed  # the vehicle drove on meanwhile
+    finally:
+        vessel.stop()
+        runner.join(10.0)
+        radio.close()
+        vehicle.close()
+        ground.close()
+    assert errors_unplugged <= 2  # the loss counted once (a read and a write may both see it), not per loop
+    said = [r.getMessage() for r in caplog.records if "ttyRADIO" in r.getMessage()]
+    assert len(said) <= 3 and "lost" in said[0] and "reopened after" in said[-1], said

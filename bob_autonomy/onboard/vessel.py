@@ -104,6 +104,7 @@ class VesselConfig:
     baud: int = 115200
     ebot: EbotConfig = field(default_factory=EbotConfig)
     gcs: str | None = None
+    gcs_baud: int = 57600  # a serial ground-station link's (a SiK telemetry radio's factory rate)
     params_file: str | None = None
     signing_key_file: str | None = None
     mesh_key_file: str | None = None  # the swarm's fleet key (bob_autonomy.network.mesh_auth; may be the signing key)
@@ -277,7 +278,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             c.system_id, c.kind, self.vehicle.encoder, self.clock.now, estimator=c.estimator
         )
         self.vehicle.decoder.message_hook = self._vehicle_message
-        self.gcs_link: Link | None = open_link(c.gcs) if c.gcs else None
+        self.gcs_link = ReopeningLink(lambda: open_link(c.gcs, c.gcs_baud)) if c.gcs else None  # a radio on USB, too
         # A serial XBee shaken loose from its USB socket, or an IP radio's interface down, comes back by itself.
         self.mesh_link = ReopeningLink(lambda: open_link(c.mesh, c.mesh_baud)) if c.mesh else None
         mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
