@@ -239,6 +239,18 @@ def test_an_unanswering_vehicle_is_a_clear_error() -> None:
         quiet.close()
 
 
+def test_a_vessel_on_another_autopilots_system_id_is_told_which_one_it_hears(stand_in: StandInVehicle) -> None:
+    """Every ArduPilot leaves the factory as system 1; a vessel started as system 2 on it hears only system 1."""
+    config = replace(_config(stand_in.port, heartbeat_timeout_s=1.0), system_id=2)
+    vessel = Vessel(config, clock=ScaledWallClock(SCALE))
+    with pytest.raises(VehicleError) as error:
+        vessel.run(duration_s=5.0)
+    vessel.shutdown()
+    assert "this link carries autopilot system 1: start with --system-id 1, or set that autopilot's MAV_SYSID to 2" in (
+        str(error.value)
+    )
+
+
 def test_the_command_line_rejects_a_bad_behaviour_clearly() -> None:
     result = subprocess.run(
         [sys.executable, "-m", "bob_autonomy.cli", "run", "--vehicle", "udpout:127.0.0.1:5760", "--system-id", "1",

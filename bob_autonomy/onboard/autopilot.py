@@ -414,6 +414,7 @@ class AutopilotSession:
         self.params: dict[str, float] = {}
         self.acks: deque = deque(maxlen=64)  # (t, command, result)
         self.texts: deque = deque(maxlen=32)  # (t, severity, text)
+        self.other_autopilots: set[int] = set()  # system ids of other autopilots heard on this link (start-up errors)
         self.rates = RateMeter()
         self.custom_mode: int | None = None
         self.armed: bool | None = None
@@ -443,6 +444,12 @@ class AutopilotSession:
     def handle(self, msg) -> None:
         """Take one decoded message; only the autopilot's own (system, component 1) count."""
         if not self.is_autopilot(msg):
+            if (
+                msg.get_type() == "HEARTBEAT"
+                and msg.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1
+                and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
+            ):
+                self.other_autopilots.add(int(msg.get_srcSystem()))
             return
         now = float(self.clock())
         self.rates.note(msg.get_msgId(), now)

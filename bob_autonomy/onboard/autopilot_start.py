@@ -125,6 +125,14 @@ class AutopilotStarter:
         if not self._wait(o.heartbeat_timeout_s, lambda: s.custom_mode is not None):
             if self.stopped():
                 return None
+            others = sorted(s.other_autopilots)
+            if others:  # the link works: the ids disagree (every ArduPilot leaves the factory as system 1)
+                heard = ", ".join(map(str, others))
+                raise AutopilotStartError(
+                    f"no HEARTBEAT from autopilot system {s.target_system} within {o.heartbeat_timeout_s:g} s, but "
+                    f"this link carries autopilot system {heard}: start with --system-id {others[0]}, or set that "
+                    f"autopilot's MAV_SYSID to {s.target_system} (each vessel of a swarm needs its own)"
+                )
             raise AutopilotStartError(
                 f"no HEARTBEAT from autopilot system {s.target_system} component 1 within {o.heartbeat_timeout_s:g} s:"
                 " check the link (port, baud rate) and the autopilot's MAV_SYSID"
