@@ -16,10 +16,10 @@ import socket
 import sys
 import threading
 import time
-import tty
 
 import numpy as np
 import pytest
+from vessel_helpers import PluggedPty
 
 from bob_autonomy.cli import main
 from bob_autonomy.core.interfaces import AgentState, Pose
@@ -261,27 +261,8 @@ def test_a_vessel_opens_its_xbee_at_the_mesh_baud_rate_not_the_vehicles() -> Non
         os.close(slave)
 
 
-class PluggedXbee:
-    """An XBee on a USB serial adapter, reached by a stable path (as udev's /dev/serial/by-id/ names it): `master`
-    is the radio's side. `unplug()` closes it under the vessel and removes the path; `replug()` brings a new one
-    behind the same path."""
-
-    def __init__(self, path) -> None:
-        self.path = path
-        self.master: int | None = None
-        self.replug()
-
-    def replug(self) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        os.symlink(os.ttyname(slave), self.path)
-        os.close(slave)  # the vessel opens it by the path
-        self.master = master
-
-    def unplug(self) -> None:
-        os.close(self.master)
-        self.master = None
-        os.unlink(self.path)
+class PluggedXbee(PluggedPty):
+    """An XBee on a USB serial adapter (`vessel_helpers.PluggedPty`); `master` is the radio's side."""
 
     def sent(self, timeout_s: float = 2.0) -> bytes:
         """What the vessel wrote to the radio, waiting up to timeout_s for the first bytes."""

@@ -15,13 +15,12 @@ import select
 import socket
 import threading
 import time
-import tty
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from vessel_helpers import ORIGIN, SCALE, StandInVehicle
+from vessel_helpers import ORIGIN, SCALE, PluggedPty, StandInVehicle
 
 from bob_autonomy.cli import _apply_config_file, _parser, config_from_args
 from bob_autonomy.core.behavior_config import BehaviorChoice
@@ -262,23 +261,20 @@ class PtyBridge(threading.Thread):
         self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.udp.bind(("127.0.0.1", 0))
         self.lock = threading.Lock()
-        self.master: int | None = None
+        self.port = PluggedPty(path)
         self.running = True
-        self.replug()
+
+    @property
+    def master(self) -> int | None:
+        return self.port.master
 
     def replug(self) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        os.symlink(os.ttyname(slave), self.path)
-        os.close(slave)  # the vessel opens it by the path
         with self.lock:
-            self.master = master
+            self.port.replug()
 
     def unplug(self) -> None:
         with self.lock:
-            os.close(self.master)
-            self.master = None
-        os.unlink(self.path)
+            self.port.unplug()
 
     def run(self) -> None:
         while self.running:

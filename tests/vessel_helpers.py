@@ -1,10 +1,13 @@
-"""A stand-in vehicle for autonomy-process tests: the simulator's autopilot on a real UDP socket."""
+"""Stand-ins for autonomy-process tests: the simulator's autopilot on a real UDP socket, and a serial port that
+can be unplugged and plugged in again."""
 
 from __future__ import annotations
 
 import math
+import os
 import socket
 import threading
+import tty
 
 import numpy as np
 
@@ -90,6 +93,29 @@ class StandInVehicle(threading.Thread):
         self.running.clear()
         self.join(2.0)
         self.sock.close()
+
+
+class PluggedPty:
+    """A serial device on a USB adapter, reached by a stable path (as udev's /dev/serial/by-id/ names it): a
+    pseudo-terminal whose `master` is the device's side. `unplug()` closes it under whoever opened the path and
+    removes the path; `replug()` brings a new one behind the same path."""
+
+    def __init__(self, path) -> None:
+        self.path = path
+        self.master: int | None = None
+        self.replug()
+
+    def replug(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.symlink(os.ttyname(slave), self.path)
+        os.close(slave)  # the vessel opens it by the path
+        self.master = master
+
+    def unplug(self) -> None:
+        os.close(self.master)
+        self.master = None
+        os.unlink(self.path)
 
 
 def ground_station_vessel_config(vehicle_port: int, **overrides) -> VesselConfig:
