@@ -5,6 +5,8 @@ vessel's computer, talking over a UDP broadcast mesh (`udpbcast`, as on an IP ra
   each alone would stay where it is, so only the mesh can bring them together. Eq. (5) balances four agents on a
   square of side s where sqrt(2) (1 - p0^2/s^2) + 1 - p0^2/(2 s^2) = 0, i.e. s^2 = p0^2 (sqrt(2) + 1/2) /
   (sqrt(2) + 1), s = 0.89 p0 (diagonal 1.26 p0).
+- The same four waiting for their start, one ground station (pymavlink) for all: one MISSION_START to system 0
+  starts them, one PARAM_SET of BOB_P0_M to system 0 resizes their square.
 - A mixed swarm on a mesh signed with the fleet key: an omni leader drives 60 m east; an omni rover and two
   motorboats (ArduPilot's SITL motorboat: rudder and throttle) follow it (H = 1, the leader's position as goal),
   while a radio without the key broadcasts that the leader is 300 m north-east.
@@ -21,6 +23,7 @@ import json
 import math
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -29,6 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sitl_harness import BINARY, HOME, NEEDS_SITL, RoverSitl, free_udp_port, home_at, local_xy
 
 from bob_autonomy.core.interfaces import AgentState, Pose
@@ -45,12 +49,14 @@ LEADER_GOAL = (60.0, 0.0)
 FOLLOW_RADIUS_M = 25.0  # every follower this close to the leader at the end
 
 
-def _autonomy(sitl: RoverSitl, mesh: str, log: Path, behavior: dict, *extra: str) -> subprocess.Popen:
+def _autonomy(
+    sitl: RoverSitl, mesh: str, log: Path, behavior: dict, *extra: str, duration_s: float = RUN_S
+) -> subprocess.Popen:
     command = [
         sys.executable, "-m", "bob_autonomy.cli", "run",
         "--vehicle", f"tcp:127.0.0.1:{sitl.serial0}", "--system-id", str(sitl.system_id),
         f"--origin={HOME[0]},{HOME[1]}", "--mesh", mesh, "--broadcast-period", "0.5", "--neighbor-expiry", "3",
-        "--behavior-json", json.dumps(behavior), "--arm-timeout", "60", "--duration", str(RUN_S),
+        "--behavior-json", json.dumps(behavior), "--arm-timeout", "60", "--duration", str(duration_s),
         "--log-file", str(log), *extra,
     ]  # fmt: skip
     return subprocess.Popen(command, env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -206,3 +212,114 @@ def test_a_mixed_swarm_follows_its_leader_on_a_signed_broadcast_mesh_and_refuses
         assert all(n > 0.5 * intruder.sent for n in refused[1:]), f"refused {refused} of {intruder.sent}"
         assert counters[0]["same_id"] > 0.5 * intruder.sent, counters[0]
         assert all(c["received"] > 100 for c in counters), "the members did not hear each other"
+
+
+class FleetGroundStation:
+    """A ground station for a whole fleet, on pymavlink's own MAVLink (system 255): one UDP port that every
+    vessel's `--gcs udpout:` points at; what it sends goes to every vessel heard, with a HEARTBEAT a second (the
+    vessels' ground-station failsafe counts those). `heard` keeps each (system, component)'s last HEARTBEAT time,
+    `acks` each COMMAND_ACK and `params` each PARAM_VALUE, with the sender's system."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.vessels: dict[int, tuple[str, int]] = {}  # system id -> its address
+        self.heard: dict[tuple[int, int], float] = {}
+        self.acks: list[tuple[int, int, int]] = []  # (system, command, result)
+        self.params: list[tuple[int, str, float]] = []  # (system, name, value)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+
+    def send_to_all(self, msg) -> None:
+        data = msg.pack(self.mav)
+        for address in list(self.vessels.values()):
+            self.sock.sendto(data, address)
+
+    def _serve(self) -> None:
+        next_beat = 0.0
+        while not self._stop.is_set():
+            if time.monotonic() >= next_beat:
+                next_beat = time.monotonic() + 1.0
+                beat = self.mav.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                self.send_to_all(beat)
+            try:
+                data, address = self.sock.recvfrom(65535)
+            except TimeoutError:
+                continue
+            for msg in self.mav.parse_buffer(data) or []:
+                system, component = msg.get_srcSystem(), msg.get_srcComponent()
+                self.vessels[system] = address
+                name = msg.get_type()
+                if name == "HEARTBEAT":
+                    self.heard[(system, component)] = time.monotonic()
+                elif name == "COMMAND_ACK" and component == mavlink.MAV_COMP_ID_ONBOARD_COMPUTER:
+                    self.acks.append((system, msg.command, msg.result))
+                elif name == "PARAM_VALUE" and component == mavlink.MAV_COMP_ID_ONBOARD_COMPUTER:
+                    self.params.append((system, msg.param_id, msg.param_value))
+
+    def __enter__(self) -> FleetGroundStation:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.sock.close()
+
+
+def _square(sitls: list[RoverSitl], p0_m: float, t: float) -> tuple[list[float], list[float]]:
+    """The sorted pair distances at wall time t, and those of eq. (5)'s square for p0_m."""
+    side = p0_m / math.sqrt((math.sqrt(2) + 1) / (math.sqrt(2) + 0.5))
+    return sorted(_pairwise(np.array([_where(s, t) for s in sitls]))), [side] * 4 + [side * math.sqrt(2)] * 2
+
+
+def test_one_ground_station_starts_a_waiting_swarm_and_resizes_it_with_one_message_each(tmp_path) -> None:
+    """The swarm of the first test, waiting for its start (`--wait-for-start`), each vessel's ground-station link
+    on one ground station: one MISSION_START to system 0 starts all four, each acknowledging; one PARAM_SET of
+    BOB_P0_M to system 0 later resizes the square they hold to the new p0."""
+    mesh = f"udpbcast:127.255.255.255:{free_udp_port()}"
+    aggregate = {"behavior": "bob-rule", "params": {"H": 0, "p0": P0_M, "max_speed": 1.5, "speed_scale": 1.0}}
+    new_p0 = 25.0
+    with contextlib.ExitStack() as stack:
+        sitls = _start(stack, tmp_path, [("omni", corner) for corner in CORNERS])
+        gcs = stack.enter_context(FleetGroundStation())
+        extra = ("--wait-for-start", "--gcs", f"udpout:127.0.0.1:{gcs.port}")
+        processes = [
+            _autonomy(s, mesh, tmp_path / f"vessel{s.system_id}.log", aggregate, *extra, duration_s=RUN_S + 120)
+            for s in sitls
+        ]
+        try:
+            deadline = time.monotonic() + 90.0  # all four components 191 heard, and every vessel armed
+            while time.monotonic() < deadline:
+                armed = [s.seen.modes and s.seen.modes[-1][2] for s in sitls]
+                if all(armed) and all((k, 191) in gcs.heard for k in (1, 2, 3, 4)):
+                    break
+                time.sleep(0.5)
+            assert all(armed), f"armed {armed}; heard {sorted(gcs.heard)}"
+            time.sleep(10.0)  # waiting for the start: held where they are
+            waited = _square(sitls, P0_M, time.monotonic())[0]
+            assert waited[0] > 55.0, f"the swarm moved before its start: pairs {np.round(waited, 1)} m"
+
+            gcs.send_to_all(gcs.mav.command_long_encode(0, 191, mavlink.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0))
+            time.sleep(2.0)
+            started = sorted(system for system, command, result in gcs.acks if command == 300 and result == 0)
+            assert started == [1, 2, 3, 4], gcs.acks
+            time.sleep(RUN_S - 30.0)
+            first, expected = _square(sitls, P0_M, time.monotonic())
+            assert np.allclose(first, expected, rtol=0.1), f"pairs {np.round(first, 1)} m, eq. (5) {expected}"
+
+            gcs.send_to_all(gcs.mav.param_set_encode(0, 191, b"BOB_P0_M", new_p0, mavlink.MAV_PARAM_TYPE_REAL32))
+            time.sleep(2.0)
+            echoed = sorted(system for system, name, value in gcs.params if name == "BOB_P0_M" and value == new_p0)
+            assert echoed == [1, 2, 3, 4], gcs.params
+            time.sleep(80.0)
+            resized, expected = _square(sitls, new_p0, time.monotonic())
+            print(f"p0 {P0_M:g} m: pairs {np.round(first, 1)} m; p0 {new_p0:g} m: pairs {np.round(resized, 1)} m")
+            assert np.allclose(resized, expected, rtol=0.1), f"pairs {np.round(resized, 1)} m, eq. (5) {expected}"
+        finally:
+            for p in processes:
+                p.send_signal(signal.SIGTERM)
+            _run_to_the_end(processes, tmp_path)
