@@ -357,48 +357,73 @@ class SerialLink(Link):
 
 
 class ReopeningLink(Link):
-    """A link that outlives its port: closed at its first error, then opened again by `opener` every `period_s`
-    until it opens (a USB serial adapter shaken loose and plugged in again, a network interface down and up). The
-    write or read that failed raises or returns nothing as the link did; what passes after it until the link is
-    back is lost: a read returns nothing, a write is dropped (counted in `dropped_writes`), so a loop that writes
-    every period is not told at every write. Said once when lost and once when back (logged), counted in `losses`
-    and `reopens`. The first open is `opener()` as is: it raises LinkError. Other attributes are the open link's
+    """A link that outlives its port. A serial or TCP link is closed at its first error, then opened again by
+    `opener` every `period_s` until it opens (a USB serial adapter shaken loose and plugged in again). A UDP link
+    (`keep_open`: its socket outlives an interface going down, and keeps its port, by which a relay or a ground
+    station knows it) is kept, and written to again every `period_s` until a write goes out. The write or read
+    that failed raises or returns nothing as the link did; until the link is back a read returns nothing (a kept
+    UDP link is still read) and a write is dropped (counted in `dropped_writes`), so a loop that writes every
+    period is not told at every write. Said once when lost and once when back (logged), counted in `losses` and
+    `reopens`. The first open is `opener()` as is: it raises LinkError. Other attributes are the open link's
     (`local_address`, `peers` of a UDP link)."""
 
-    def __init__(self, opener: Callable[[], Link], period_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
-        self._opener, self.period_s, self.clock = opener, float(period_s), clock
+    def __init__(
+        self,
+        opener: Callable[[], Link],
+        period_s: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        keep_open: bool = False,
+    ) -> None:
+        self._opener, self.period_s, self.clock, self.keep_open = opener, float(period_s), clock, keep_open
         self.link: Link | None = opener()
         self.connection = self.link.connection
         self.losses = 0
         self.reopens = 0
         self.dropped_writes = 0
+        self._lost = False
         self._lost_at = 0.0
         self._next_try = 0.0
         self._closed = False
 
     def _lose(self, error: OSError) -> None:
+        now = float(self.clock())
+        self._next_try = now + self.period_s
+        if self._lost:
+            return  # a retry that failed: still lost, and said so already
+        self._lost, self._lost_at = True, now
         self.losses += 1
-        self._lost_at = float(self.clock())
-        self._next_try = self._lost_at + self.period_s
+        if self.keep_open:
+            logger.warning("%s failing (%s); trying it again every %g s", self.connection, error, self.period_s)
+            return
         with contextlib.suppress(OSError):
             self.link.close()
         self.link = None
         logger.warning("%s lost (%s); reopening it every %g s", self.connection, error, self.period_s)
 
-    def _open(self) -> bool:
-        """Whether there is a link to use, after an attempt to reopen it if one is due."""
-        if self.link is not None or self._closed:
-            return self.link is not None
+    def _back(self) -> None:
+        if self._lost:
+            self._lost = False
+            self.reopens += 1
+            verb = "works again" if self.keep_open else "reopened"
+            logger.warning("%s %s after %.1f s", self.connection, verb, float(self.clock()) - self._lost_at)
+
+    def _usable(self) -> bool:
+        """Whether to use the link now: it is not lost, or a retry is due (a closed link opened again first)."""
+        if self._closed:
+            return False
+        if not self._lost:
+            return True
         now = float(self.clock())
         if now < self._next_try:
             return False
         self._next_try = now + self.period_s
-        try:
-            self.link = self._opener()
-        except OSError:
-            return False
-        self.reopens += 1
-        logger.warning("%s reopened after %.1f s", self.connection, now - self._lost_at)
+        if self.link is None:
+            try:
+                self.link = self._opener()
+            except OSError:
+                return False
+            self._back()
         return True
 
     def __getattr__(self, name: str):
@@ -408,17 +433,22 @@ class ReopeningLink(Link):
         return getattr(link, name)
 
     def write(self, data: bytes) -> None:
-        if not self._open():
+        if not self._usable():
             self.dropped_writes += 1
             return
+        retrying = self._lost
         try:
             self.link.write(data)
         except OSError as error:
             self._lose(error)
+            if retrying:
+                self.dropped_writes += 1
+                return
             raise
+        self._back()
 
     def read_from(self, max_bytes: int = 4096, timeout_s: float = 0.0) -> tuple[bytes, Address | None]:
-        if not self._open():
+        if self._closed or not (self.keep_open or self._usable()):
             return b"", None
         try:
             return self.link.read_from(max_bytes, timeout_s)

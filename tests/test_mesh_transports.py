@@ -304,3 +304,32 @@ def test_an_xbee_shaken_loose_is_reopened_by_its_path_and_the_mesh_goes_on(tmp_p
             xbee.unplug()
     said = [r.getMessage() for r in caplog.records if r.name == "firmware_bridge.links"]
     assert len(said) == 2 and "lost" in said[0] and "reopened after" in said[1], said
+
+
+def test_a_udp_mesh_link_whose_sends_fail_keeps_its_socket_hears_on_and_sends_again_when_it_can(caplog) -> None:
+    """An IP radio's interface going down fails every send (here: the socket's broadcast permission withdrawn,
+    EACCES). The socket is kept, and with it its port, by which a relay or a ground station knows the vessel."""
+    port = free_udp_port()
+    link = ReopeningLink(lambda: open_link(f"udpbcast:{BROADCAST}:{port}"), period_s=0.2, keep_open=True)
+    with open_link(f"udpbcast:{BROADCAST}:{port}") as peer_link:
+        ours, peer = LinkMesh(link, 1, ["goal"], lambda: 0.0), LinkMesh(peer_link, 2, ["goal"], lambda: 0.0)
+        sock = link.link.sock
+        address = sock.getsockname()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 0)
+        for step in range(8):
+            ours.broadcast(state(1, x=float(step)))
+            time.sleep(0.05)
+        assert (link.losses, ours.send_errors) == (1, 1) and link.dropped_writes == 7
+        peer.broadcast(state(2, x=7.0))
+        assert [s.pose.x for s in heard(ours, 1)] == [7.0]  # it still hears its swarm
+        assert heard(peer, 1, timeout_s=0.3) == []
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        end = time.monotonic() + 2.0
+        while link.reopens == 0 and time.monotonic() < end:
+            ours.broadcast(state(1, x=9.0))
+            time.sleep(0.05)
+        assert link.reopens == 1 and link.link.sock is sock and sock.getsockname() == address
+        assert 9.0 in [s.pose.x for s in heard(peer, 1)]
+    link.close()
+    said = [r.getMessage() for r in caplog.records if r.name == "firmware_bridge.links"]
+    assert len(said) == 2 and "failing" in said[0] and "works again after" in said[1], said

@@ -125,6 +125,12 @@ class VesselConfig:
         return self.system_id - 1
 
 
+def _lasting_link(connection: str, baud: int) -> ReopeningLink:
+    """A link that comes back after a failure: a serial port or TCP connection reopened, a UDP socket kept."""
+    udp = parse_connection_string(connection)[0].startswith("udp")
+    return ReopeningLink(lambda: open_link(connection, baud), keep_open=udp)
+
+
 class ThrottledMesh:
     """A mesh that sends at most one state per `period_s` (the radio's budget); receiving is unthrottled."""
 
@@ -278,9 +284,10 @@ class Vessel(VesselLinks, AutopilotDriving):
             c.system_id, c.kind, self.vehicle.encoder, self.clock.now, estimator=c.estimator
         )
         self.vehicle.decoder.message_hook = self._vehicle_message
-        self.gcs_link = ReopeningLink(lambda: open_link(c.gcs, c.gcs_baud)) if c.gcs else None  # a radio on USB, too
-        # A serial XBee shaken loose from its USB socket, or an IP radio's interface down, comes back by itself.
-        self.mesh_link = ReopeningLink(lambda: open_link(c.mesh, c.mesh_baud)) if c.mesh else None
+        # A radio shaken loose from its USB socket (an XBee, a SiK telemetry radio), or an IP radio's interface down,
+        # comes back by itself (firmware_bridge.links.ReopeningLink).
+        self.gcs_link = _lasting_link(c.gcs, c.gcs_baud) if c.gcs else None
+        self.mesh_link = _lasting_link(c.mesh, c.mesh_baud) if c.mesh else None
         mesh_key = load_signing_key(c.mesh_key_file) if c.mesh_key_file else None  # same file format
         if isinstance(self.mesh_link and self.mesh_link.link, UdpBroadcastLink) and mesh_key is None:
             logger.warning(
