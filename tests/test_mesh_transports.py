@@ -117,6 +117,22 @@ def test_two_vessels_with_one_system_id_are_told_why_they_hear_nothing_of_each_o
     assert len(warnings) == 2 and "MAVLink system id 1" in warnings[0] and "MAV_SYSID" in warnings[0]
 
 
+def test_on_a_keyed_mesh_a_keyless_radio_using_our_id_is_refused_not_taken_for_a_member_on_our_system_id() -> None:
+    port = free_udp_port()
+    with (
+        open_link(f"udpbcast:{BROADCAST}:{port}") as a,
+        open_link(f"udpbcast:{BROADCAST}:{port}") as b,
+        open_link(f"udpbcast:{BROADCAST}:{port}") as outsider,
+    ):
+        ours, twin = LinkMesh(a, 1, ["goal"], lambda: 0.0, key=KEY), LinkMesh(b, 1, ["goal"], lambda: 0.0, key=KEY)
+        outsider.write(encode_state(state(1, x=300.0), ["goal"]))  # no key, claiming agent 1
+        twin.broadcast(state(1, x=2.0))  # a member with the key, misconfigured on our id
+        time.sleep(0.1)
+        assert ours.receive() == []
+        assert (ours.same_id, ours.echoes) == (1, 0)
+        assert {reason: n for reason, n in ours.counters()["rejected"].items() if n} == {"unsigned": {"1": 1}}
+
+
 @pytest.mark.parametrize("role", ["--vehicle", "--gcs"])
 def test_udpbcast_is_refused_for_the_vehicle_and_the_ground_station(role, capsys, tmp_path) -> None:
     """A link to an autopilot or a ground station talks to one peer; one that hears every host on the network

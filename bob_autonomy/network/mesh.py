@@ -252,11 +252,12 @@ class LinkMesh:
     mesh_clock: the shared time base of the timestamps (`unix_mesh_clock`, UTC, on a vessel).
 
     Own packets echoed back are ignored (counted in `echoes`). A packet with our agent id that we did not send is
-    never a neighbour either; it is counted in `same_id` and logged: another vessel with our system id (each
-    autonomy's agent id is its vehicle's MAVLink system id - 1, so two autopilots both left at MAV_SYSID 1 never
-    hear each other), or a radio sending as us. Noise and broken packets are counted in `reader.bad`, well-formed
-    packets that cannot be decoded in `invalid`, of which those with a value out of range (NaN pose, ...)
-    also in `out_of_range`: none of them is ever returned."""
+    never a neighbour either: with a key, one that fails the checks is refused as any other (under our id); one
+    that passes them, or any on an open mesh, is counted in `same_id` and logged: another vessel with our system
+    id (each autonomy's agent id is its vehicle's MAVLink system id - 1, so two autopilots both left at MAV_SYSID
+    1 never hear each other), or on an open mesh a radio sending as us. Noise and broken packets are counted in
+    `reader.bad`, well-formed packets that cannot be decoded in `invalid`, of which those with a value out of
+    range (NaN pose, ...) also in `out_of_range`: none of them is ever returned."""
 
     def __init__(
         self,
@@ -305,10 +306,14 @@ class LinkMesh:
                 break
             valid = False
             for packet in self.reader.feed(data):
-                if header_agent_id(packet) == self.agent_id:
-                    self._our_id(packet)  # never a neighbour
+                ours = header_agent_id(packet) == self.agent_id
+                if ours and bytes(packet) in self._recent_sent:
+                    self.echoes += 1
                     continue
                 if self.verifier is not None and not self._authentic(packet):
+                    continue  # a radio without the key, as anyone it claims (us too), is refused as such
+                if ours:
+                    self._same_id()  # never a neighbour
                     continue
                 try:
                     state = decode_state(packet, self.fields)
@@ -326,16 +331,12 @@ class LinkMesh:
                 self.link.confirm_peer(sender)  # a udpin mesh link answers only senders of valid packets
         return states
 
-    def _our_id(self, packet: bytes) -> None:
-        if bytes(packet) in self._recent_sent:
-            self.echoes += 1
-            return
+    def _same_id(self) -> None:
         self.same_id += 1
         if self.same_id <= 3 or self.same_id % 1000 == 0:
             logger.warning(
                 "mesh packet from another radio with our agent id %d (%d so far): is another vessel's autopilot on "
-                "our MAVLink system id %d? Give each vessel its own (MAV_SYSID); a radio sending as us is refused "
-                "the same way",
+                "our MAVLink system id %d? Give each vessel its own (MAV_SYSID)",
                 self.agent_id,
                 self.same_id,
                 self.agent_id + 1,
