@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import select
@@ -16,6 +17,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -35,6 +37,14 @@ def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("", 0))
         return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def on_one_port(*kinds: str) -> Iterator[list]:
+    """Links of these kinds ("udpbcast", "udpout") to the loopback broadcast address on one free port, closed after."""
+    port = free_udp_port()
+    with contextlib.ExitStack() as stack:
+        yield [stack.enter_context(open_link(f"{kind}:{BROADCAST}:{port}")) for kind in kinds]
 
 
 def state(agent_id: int, x: float) -> AgentState:
@@ -59,9 +69,7 @@ def test_udpbcast_connection_strings() -> None:
 
 
 def test_every_member_hears_every_other_and_never_itself() -> None:
-    port = free_udp_port()
-    links = [open_link(f"udpbcast:{BROADCAST}:{port}") for _ in range(3)]
-    try:
+    with on_one_port("udpbcast", "udpbcast", "udpbcast") as links:
         assert all(isinstance(link, UdpBroadcastLink) for link in links)
         meshes = [LinkMesh(link, agent, ["goal"], lambda: 0.0) for agent, link in enumerate(links)]
         for agent, mesh in enumerate(meshes):
@@ -74,19 +82,11 @@ def test_every_member_hears_every_other_and_never_itself() -> None:
             time.sleep(0.02)
             assert mesh.receive() == []  # its own broadcast came back too, and was dropped as an echo
             assert (mesh.echoes, mesh.same_id) == (1, 0)
-    finally:
-        for link in links:
-            link.close()
 
 
 def test_a_keyed_broadcast_mesh_refuses_a_member_without_the_key() -> None:
     """On a broadcast network anyone in radio range can send to the port: the fleet key is what keeps them out."""
-    port = free_udp_port()
-    with (
-        open_link(f"udpbcast:{BROADCAST}:{port}") as a,
-        open_link(f"udpbcast:{BROADCAST}:{port}") as b,
-        open_link(f"udpout:{BROADCAST}:{port}") as outsider,
-    ):
+    with on_one_port("udpbcast", "udpbcast", "udpout") as (a, b, outsider):
         member_a = LinkMesh(a, 1, ["goal"], lambda: 0.0, key=KEY)
         member_b = LinkMesh(b, 2, ["goal"], lambda: 0.0, key=KEY)
         with pytest.raises(LinkError, match="Permission denied"):  # a plain socket may not even send there
@@ -104,8 +104,7 @@ def test_a_keyed_broadcast_mesh_refuses_a_member_without_the_key() -> None:
 def test_two_vessels_with_one_system_id_are_told_why_they_hear_nothing_of_each_other(caplog) -> None:
     """Every ArduPilot leaves the factory as MAVLink system 1, and each autonomy's agent id is its system id - 1:
     two vessels nobody renumbered drop each other's packets as their own. They say so."""
-    port = free_udp_port()
-    with open_link(f"udpbcast:{BROADCAST}:{port}") as a, open_link(f"udpbcast:{BROADCAST}:{port}") as b:
+    with on_one_port("udpbcast", "udpbcast") as (a, b):
         first, second = (LinkMesh(link, 0, ["goal"], lambda: 0.0) for link in (a, b))
         first.broadcast(state(0, x=1.0))
         second.broadcast(state(0, x=2.0))
@@ -118,12 +117,7 @@ def test_two_vessels_with_one_system_id_are_told_why_they_hear_nothing_of_each_o
 
 
 def test_on_a_keyed_mesh_a_keyless_radio_using_our_id_is_refused_not_taken_for_a_member_on_our_system_id() -> None:
-    port = free_udp_port()
-    with (
-        open_link(f"udpbcast:{BROADCAST}:{port}") as a,
-        open_link(f"udpbcast:{BROADCAST}:{port}") as b,
-        open_link(f"udpbcast:{BROADCAST}:{port}") as outsider,
-    ):
+    with on_one_port("udpbcast", "udpbcast", "udpbcast") as (a, b, outsider):
         ours, twin = LinkMesh(a, 1, ["goal"], lambda: 0.0, key=KEY), LinkMesh(b, 1, ["goal"], lambda: 0.0, key=KEY)
         outsider.write(encode_state(state(1, x=300.0), ["goal"]))  # no key, claiming agent 1
         twin.broadcast(state(1, x=2.0))  # a member with the key, misconfigured on our id
