@@ -350,6 +350,9 @@ class ScriptedAutopilot:
         self.arm_commands = 0
         self.arm_lag_s = 0.0  # wall s before an arming (its ACK and the armed HEARTBEAT) is heard: a slow link
         self.delayed: list[tuple[float, object]] = []
+        self.lose: dict[str, int] = {}  # how many of the first messages of each name a noisy line loses
+        self.intervals: dict[int, float] = {}  # message id: interval (us) set by SET_MESSAGE_INTERVAL
+        self.group_requests = 0  # REQUEST_DATA_STREAMs heard
 
     def send(self, data: bytes) -> None:
         self.inbox += data
@@ -369,7 +372,17 @@ class ScriptedAutopilot:
         self._out(self.mav.gps_raw_int_encode(0, self.fix_type, 0, 0, 0, 0, 0, 0, 0, 9))
         for msg in _parse(bytes(self.inbox)):
             name = msg.get_type()
-            if name == "PARAM_REQUEST_READ":
+            if name == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+                name = "SET_MESSAGE_INTERVAL"
+            if self.lose.get(name, 0) > 0:
+                self.lose[name] -= 1
+                continue
+            if name == "SET_MESSAGE_INTERVAL":
+                self.intervals[int(msg.param1)] = msg.param2
+                self._out(self.mav.command_ack_encode(msg.command, 0))
+            elif name == "REQUEST_DATA_STREAM":
+                self.group_requests += 1
+            elif name == "PARAM_REQUEST_READ":
                 pid = msg.param_id
                 if pid in self.params:
                     self._out(self.mav.param_value_encode(pid.encode(), self.params[pid], 9, 1, 0))
@@ -439,6 +452,57 @@ def test_start_up_arms_over_a_link_that_answers_late(answer_s: float, lag_s: flo
     assert autopilot.armed and autopilot.arm_commands == commands
     expected = f"autopilot refused to arm (no answer within {answer_s:g} s)"
     assert [t for t in said if "refused to arm" in t] == [expected] * complaints
+
+
+def test_start_up_asks_again_for_what_a_noisy_line_lost() -> None:
+    """Requests lost on the way (a noisy serial line) are sent again: every message rate and every parameter
+    arrive, and no stream group is asked for (ArduPilot would set every message of the group to its rate)."""
+    starter, autopilot, said = _start(OMNI)
+    autopilot.lose = {"SET_MESSAGE_INTERVAL": 2, "PARAM_REQUEST_READ": 3}
+    profile = starter.run()
+    assert set(autopilot.intervals) == set(starter.session.streams)
+    assert autopilot.group_requests == 0
+    assert profile.gcs_system_id == 254 and not any("did not report" in t for t in said), said
+
+
+def test_a_lost_interval_is_asked_again_by_id_and_a_message_without_one_by_its_group() -> None:
+    s = _session()
+    gps, imu, wheels = (
+        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+        mavlink.MAVLINK_MSG_ID_SCALED_IMU,
+        mavlink.MAVLINK_MSG_ID_WHEEL_DISTANCE,
+    )
+    s.streams[wheels] = (20.0, 0.0)
+    before = _parse(b"".join(s.requests_again([gps, imu, wheels])))  # nothing accepted yet: firmware without it
+    groups = {
+        mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+        mavlink.MAV_DATA_STREAM_RAW_SENSORS,
+        mavlink.MAV_DATA_STREAM_EXTRA1,
+    }
+    assert {m.req_stream_id for m in before} == groups
+    autopilot = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+    s.handle(_parse(autopilot.command_ack_encode(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0).pack(autopilot))[0])
+    after = _parse(b"".join(s.requests_again([gps, imu, wheels])))
+    by_id = {int(m.param1): m.param2 for m in after if m.get_type() == "COMMAND_LONG"}
+    assert by_id == {gps: pytest.approx(1e5), imu: pytest.approx(4e4)}
+    assert [m.req_stream_id for m in after if m.get_type() == "REQUEST_DATA_STREAM"] == [mavlink.MAV_DATA_STREAM_EXTRA1]
+
+
+def test_a_stream_slow_while_driving_is_asked_again_by_id_every_5_s() -> None:
+    now = [0.0]
+    s = AutopilotSession(1, BUOY, Encoder(), clock=lambda: now[0])
+    s.stream_requests()
+    autopilot = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    s.handle(_parse(autopilot.command_ack_encode(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0).pack(autopilot))[0])
+    asked = []
+    for k in range(200):  # 20 s of ATTITUDE at 20 Hz; no SCALED_IMU, no GPS_RAW_INT
+        now[0] = 0.1 * k
+        for _ in range(2):
+            s.handle(_parse(autopilot.attitude_encode(0, 0, 0, 0.1, 0, 0, 0).pack(autopilot))[0])
+        asked += [(round(now[0], 1), int(m.param1)) for m in _parse(b"".join(s.slow_stream_requests(now[0])))]
+    slow = {mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, mavlink.MAVLINK_MSG_ID_SCALED_IMU, mavlink.MAVLINK_MSG_ID_SYS_STATUS}
+    assert {m for _t, m in asked} == slow  # those the estimator needs at a rate; not ATTITUDE, which comes
+    assert sorted({t for t, _m in asked}) == [5.0, 10.0, 15.0]  # after the 5 s grace, then every 5 s
 
 
 def test_start_up_refuses_a_buoy_on_a_motorboat() -> None:
@@ -582,3 +646,16 @@ def test_a_wish_finer_than_a_percent_is_met_on_average() -> None:
         applied.append(vehicle.actuator(0.1 * k))
     throttle, rudder = np.array(applied).T
     assert np.mean(throttle) == pytest.approx(-0.004, abs=1e-4) and np.allclose(rudder, 0.5, atol=1e-3)
+
+
+def test_frames_lost_on_the_line_are_counted_from_the_autopilots_sequence_numbers() -> None:
+    s = _session()
+    autopilot = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+    frames = []
+    for k in range(600):  # the sequence number wraps at 256
+        autopilot.seq = k % 256  # as MAVLink.send sets it (pack alone keeps it)
+        frames.append(autopilot.heartbeat_encode(10, 3, 0, 0, 4).pack(autopilot))
+    for k, frame in enumerate(frames):
+        if k % 10 != 3 and k not in (250, 251, 252, 253, 254, 255, 256, 257):  # one in ten lost; 8 across a wrap
+            s.handle(_parse(frame)[0])
+    assert s.frames_lost == 60 + 8 - 1  # k = 253 is both

@@ -218,13 +218,35 @@ def test_a_motorboat_plans_with_the_throttle_slew_its_autopilot_has(slew_rate: i
 
 def test_vessel_stops_and_raises_an_alarm_when_its_vehicle_goes_silent(stand_in: StandInVehicle) -> None:
     vessel = Vessel(_config(stand_in.port, heartbeat_timeout_s=2.0), clock=ScaledWallClock(SCALE))
-    timer = threading.Timer(1.5, stand_in.muted.set)  # wall s: ~7.5 clock s into the run
-    timer.start()
+    _once_driving(vessel, stand_in.muted)
     stats = vessel.run(duration_s=20.0)
-    timer.cancel()
-    assert stats.silent_alarms == 1
+    assert stand_in.muted.is_set() and stats.silent_alarms == 1
     recent = stand_in.vehicle._command  # the last command the vehicle received
     np.testing.assert_allclose(recent, [0.0, 0.0], atol=1e-9)
+
+
+def test_an_autopilot_heard_without_its_heartbeats_is_not_silent(stand_in: StandInVehicle) -> None:
+    # Its HEARTBEATs lost on a noisy line while its GPS and ATTITUDE come: it is alive, and the vessel drives on.
+    vessel = Vessel(_config(stand_in.port, heartbeat_timeout_s=2.0), clock=ScaledWallClock(SCALE))
+    driving_at = _once_driving(vessel, stand_in.no_heartbeat)
+    stats = vessel.run(duration_s=20.0)
+    assert driving_at and stats.silent_alarms == 0
+    assert stats.commands > driving_at[0] + 50  # about 18 clock s more at 10 Hz: it drove on
+
+
+def _once_driving(vessel: Vessel, event: threading.Event) -> list[int]:
+    """Set `event` (a stand-in vehicle's fault) once the vessel has sent 5 commands; returns a list that then holds
+    the vessel's command count at that moment."""
+    driving_at: list[int] = []
+
+    def watch() -> None:
+        while vessel.stats.commands < 5:
+            time.sleep(0.02)
+        driving_at.append(vessel.stats.commands)
+        event.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+    return driving_at
 
 
 def test_an_unanswering_vehicle_is_a_clear_error() -> None:

@@ -10,6 +10,7 @@ import threading
 import tty
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.core.clock import ScaledWallClock
@@ -19,6 +20,13 @@ from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 
 ORIGIN = (1.3405, 103.9560)
 SCALE = 5.0  # the vessel's and the stand-in vehicle's clocks run 5x wall time
+
+
+def _without_heartbeats(data: bytes) -> bytes:
+    """The MAVLink frames of `data` but its HEARTBEATs."""
+    parser = mavlink.MAVLink(None)
+    messages = parser.parse_buffer(data) or []
+    return b"".join(bytes(m.get_msgbuf()) for m in messages if m.get_type() != "HEARTBEAT")
 
 
 class StandInVehicle(threading.Thread):
@@ -43,6 +51,7 @@ class StandInVehicle(threading.Thread):
         self.deaf = threading.Event()  # set: hears nothing (a broken wire from the vessel), still sends
         self.no_fix = threading.Event()  # set: its GPS has no fix (GPS_RAW_INT fix type 1, no satellites)
         self.no_attitude = threading.Event()  # set: it sends no ATTITUDE (no heading)
+        self.no_heartbeat = threading.Event()  # set: its HEARTBEATs are lost (a noisy line), the rest comes
         self.applied: list[np.ndarray] = []
 
     def run(self) -> None:
@@ -52,7 +61,7 @@ class StandInVehicle(threading.Thread):
             try:
                 data, self.peer = self.sock.recvfrom(65535)
                 replies = b"" if self.deaf.is_set() else self.vehicle.receive(data, self.clock.now())
-                if replies:
+                if replies and not self.muted.is_set():
                     self.sock.sendto(replies, self.peer)
             except TimeoutError:
                 pass
@@ -79,6 +88,8 @@ class StandInVehicle(threading.Thread):
             if now >= next_att and not self.no_attitude.is_set():
                 next_att = now + 0.1
                 out += self.vehicle.telemetry.attitude(now, self.heading)
+            if out and self.no_heartbeat.is_set():
+                out = _without_heartbeats(out)
             if out:
                 self.sock.sendto(out, self.peer)
 

@@ -434,6 +434,10 @@ class AutopilotSession:
         self.last_reboot: tuple[float, float] | None = None  # (clock before, clock after) at the newest reboot, s
         self._slow_warned: set[int] = set()
         self._streams_requested_at: float | None = None
+        self.intervals_accepted = False  # this autopilot accepted a SET_MESSAGE_INTERVAL: it schedules by message id
+        self.frames_lost = 0  # the autopilot's frames missed on the link, from gaps in their sequence numbers
+        self._last_seq: int | None = None
+        self._slow_asked_at: dict[int, float] = {}  # when each slow message was last asked for again (clock s)
         self.sent: deque = deque(maxlen=128)  # (t, {channel: PWM}) of the overrides we sent (6.5 s at 20 Hz)
 
     # -- what the autopilot says ---------------------------------------------------------------------
@@ -453,6 +457,7 @@ class AutopilotSession:
             return
         now = float(self.clock())
         self.rates.note(msg.get_msgId(), now)
+        self._count_sequence(msg.get_seq())
         name = msg.get_type()
         try:
             boot_ms = getattr(msg, "time_boot_ms", None)
@@ -469,6 +474,8 @@ class AutopilotSession:
                     self.params[pid.rstrip("\x00")] = value
             elif name == "COMMAND_ACK":
                 self.acks.append((now, int(msg.command), int(msg.result)))
+                if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and msg.result == mavlink.MAV_RESULT_ACCEPTED:
+                    self.intervals_accepted = True
             elif name == "STATUSTEXT":
                 text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
                 self.texts.append((now, int(msg.severity), text.rstrip("\x00")))
@@ -550,18 +557,65 @@ class AutopilotSession:
                 rates[stream] = max(rates.get(stream, 0.0), hz)
         return [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
 
-    def lagging_stream_requests(self, now_s: float, window_s: float) -> list[bytes]:
-        """REQUEST_DATA_STREAM for the groups of requested messages that are as good as absent over the last
-        `window_s` (under a quarter of the asked rate and under 2 Hz: their SET_MESSAGE_INTERVAL was refused or
-        ignored, not merely limited by a slower sensor); each group asked at the highest rate wanted of it."""
-        rates: dict[int, float] = {}
+    def _count_sequence(self, seq: int) -> None:
+        """Count the autopilot's frames lost on the way: each MAVLink frame carries a sequence number that its
+        sender increments per link (mod 256), so a gap of k means k frames spoiled or dropped, as MAVProxy counts
+        a link's loss."""
+        if self._last_seq is not None:
+            self.frames_lost += (seq - self._last_seq - 1) % 256
+        self._last_seq = seq
+
+    def lagging_messages(self, now_s: float, window_s: float) -> list[int]:
+        """Requested messages as good as absent over the last `window_s`: under a quarter of the asked rate and
+        under 2 Hz (their request was lost, refused or ignored, not merely limited by a slower sensor)."""
+        lagging = []
         for message, (hz, _) in self.streams.items():
             q = self.rates.arrivals.get(message, ())
             got = sum(1 for t in q if t > now_s - window_s) / window_s
-            stream = STREAM_OF_MESSAGE.get(message)
-            if got < min(0.25 * hz, 2.0) and stream is not None:
+            if got < min(0.25 * hz, 2.0):
+                lagging.append(message)
+        return lagging
+
+    def requests_again(self, messages: Iterable[int]) -> list[bytes]:
+        """Ask for `messages` again: each by its id (SET_MESSAGE_INTERVAL) from an autopilot that has accepted
+        that command and schedules the message by id; the rest by their stream groups (REQUEST_DATA_STREAM, each
+        group at the highest rate wanted of it). Never a group for a message that has an interval: ArduPilot sets
+        every message of a requested group to the group's rate (GCS_Param.cpp handle_request_data_stream,
+        GCS_Common.cpp initialise_message_intervals_for_stream), and the groups of GPS_RAW_INT, ATTITUDE and
+        SCALED_IMU at 10-25 Hz overfill a 57,600 baud line so far that every stream starves (found with ArduPilot's
+        SITL on a noisy serial line, where a lost SET_MESSAGE_INTERVAL had been answered with its group)."""
+        frames, rates = [], {}
+        for message in messages:
+            hz = self.streams[message][0]
+            if self.intervals_accepted and message not in NO_INTERVAL:
+                frames.append(set_message_interval(self.encoder, self.target_system, message, hz))
+            elif message in STREAM_OF_MESSAGE:
+                stream = STREAM_OF_MESSAGE[message]
                 rates[stream] = max(rates.get(stream, 0.0), hz)
-        return [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
+        groups = [request_data_stream(self.encoder, self.target_system, s, math.ceil(hz)) for s, hz in rates.items()]
+        return frames + groups
+
+    def lagging_stream_requests(self, now_s: float, window_s: float) -> list[bytes]:
+        """`requests_again` for the `lagging_messages` of the last `window_s`."""
+        return self.requests_again(self.lagging_messages(now_s, window_s))
+
+    def slow_stream_requests(self, now_s: float, grace_s: float = 5.0, every_s: float = 5.0) -> list[bytes]:
+        """While driving: SET_MESSAGE_INTERVAL again for each message the estimators need that arrives slower
+        than usable, `grace_s` after the streams were requested, at most once per `every_s` per message (its
+        request lost on a noisy line, or the autopilot's streams reset). Only from an autopilot that schedules by
+        id: never a stream group while driving (`requests_again`)."""
+        if not self.intervals_accepted or self._streams_requested_at is None:
+            return []
+        if now_s - self._streams_requested_at < grace_s:
+            return []
+        frames = []
+        for message, (wanted, slowest) in self.streams.items():
+            if slowest <= 0 or message in NO_INTERVAL or self.rates.rate_hz(message, now_s) >= slowest:
+                continue
+            if now_s - self._slow_asked_at.get(message, -math.inf) >= every_s:
+                self._slow_asked_at[message] = now_s
+                frames.append(set_message_interval(self.encoder, self.target_system, message, wanted))
+        return frames
 
     def info_requests(self) -> list[bytes]:
         return [

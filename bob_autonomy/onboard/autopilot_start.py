@@ -20,13 +20,14 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from bob_autonomy.onboard.autopilot import CORE_PARAMS, AutopilotProfile, AutopilotSession
+from bob_autonomy.onboard.autopilot import CORE_PARAMS, AutopilotProfile, AutopilotSession, message_name
 from firmware_bridge.commands import ROVER_MODES, heartbeat
 
 logger = logging.getLogger(__name__)
@@ -42,6 +43,11 @@ RESULT_WORDS = {
 
 
 PARAM_QUIET_S = 0.5  # no PARAM_VALUE for this long after some came: the rest are names the autopilot lacks
+# Rounds of parameter requests, each for the names still unread, while a round reads some or the line loses
+# frames: on a noisy line (a byte in 100 spoiled, about half the frames lost) two rounds left FRAME_CLASS and
+# RC_OVERRIDE_TIME unread. On a clean line a round that reads none ends them: the rest are names it lacks.
+PARAM_ROUNDS = 6
+STREAM_REQUEST_ROUNDS = 3  # rounds of SET_MESSAGE_INTERVAL while some go unanswered
 
 
 class AutopilotStartError(RuntimeError):
@@ -143,10 +149,12 @@ class AutopilotStarter:
             return None
         self._neutral = True
         self._wait(o.neutral_lead_s)
-        lagging = s.lagging_stream_requests(s.clock(), o.neutral_lead_s)
+        lagging = s.lagging_messages(s.clock(), o.neutral_lead_s)
         if lagging:
-            logger.info("%d stream group(s) asked again with REQUEST_DATA_STREAM (messages still slow)", len(lagging))
-            for frame in lagging:
+            how = "by id" if s.intervals_accepted else "by stream group"
+            names = ", ".join(message_name(m) for m in lagging)
+            logger.info("still slow after the start-up, asked again %s: %s", how, names)
+            for frame in s.requests_again(lagging):
                 self.send(frame)
         self._set_mode(o.mode)
         self._wait_ready()
@@ -154,16 +162,26 @@ class AutopilotStarter:
         return profile
 
     def _request_streams(self) -> None:
+        """SET_MESSAGE_INTERVAL for every message wanted, sent again (all of them: a COMMAND_ACK does not say
+        which request it answers) while fewer acknowledgements than requests come back, a request or its answer
+        lost on a noisy line; REQUEST_DATA_STREAM only from firmware that answers none, or refuses them all."""
         s = self.session
         since = time.monotonic()
-        t0 = s.clock()
-        for frame in s.stream_requests() + s.info_requests():
-            self.send(frame)
         command = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
-        self._wait(1.5, lambda: len(s.acks_since(command, t0)) >= s.interval_requests)
-        results = s.acks_since(command, t0)
-        refused = [r for r in results if r != mavlink.MAV_RESULT_ACCEPTED]
-        if results and refused:
+        first = s.clock()
+        for frame in s.info_requests():
+            self.send(frame)
+        for attempt in range(STREAM_REQUEST_ROUNDS):
+            t0 = s.clock()
+            for frame in s.stream_requests():
+                self.send(frame)
+            self._wait(1.5, lambda t0=t0: len(s.acks_since(command, t0)) >= s.interval_requests)
+            answered = len(s.acks_since(command, t0))
+            if answered >= s.interval_requests or self.stopped() or (attempt >= 1 and not s.acks_since(command, first)):
+                break  # all answered; or none twice: firmware without the command
+        results = s.acks_since(command, first)
+        refused = [r for r in s.acks_since(command, t0) if r != mavlink.MAV_RESULT_ACCEPTED]  # the last round's
+        if refused:
             self._say(
                 mavlink.MAV_SEVERITY_WARNING,
                 f"autopilot refused {len(refused)} of {s.interval_requests} message-rate requests "
@@ -183,11 +201,15 @@ class AutopilotStarter:
         s, o = self.session, self.options
         per_round = o.param_timeout_s / 4
         for names in (list(CORE_PARAMS), None):
-            for _ in range(2):
+            missing_before, lost_before = math.inf, s.frames_lost
+            for _ in range(PARAM_ROUNDS):
                 wanted = s.rc_param_names() if names is None else names
                 missing = [n for n in wanted if n not in s.params]
                 if not missing or self.stopped():
                     break
+                if len(missing) >= missing_before and s.frames_lost == lost_before:
+                    break  # the last round read none of the rest on a line that lost nothing: names it lacks
+                missing_before, lost_before = len(missing), s.frames_lost
                 asked = s.clock()
                 for frame in s.param_requests(missing):
                     self.send(frame)

@@ -87,7 +87,8 @@ class VehicleLink:
         return sensors
 
     def silent(self) -> bool:
-        """True when the vehicle's heartbeat has not been heard for longer than the timeout."""
+        """True when the vehicle has not been heard for longer than the timeout (its HEARTBEAT; a vessel also counts
+        every other message of its autopilot)."""
         return self.watch.is_silent()
 
     @property

@@ -145,3 +145,5 @@ class AutopilotDriving:
             self._say(mavlink.MAV_SEVERITY_ERROR, text)
         for text in a.slow_streams(now):
             self._say(mavlink.MAV_SEVERITY_WARNING, text)
+        for frame in a.slow_stream_requests(now):
+            self._send(frame)

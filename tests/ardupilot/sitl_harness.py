@@ -95,7 +95,8 @@ class Observation:
 class RoverSitl:
     """One ArduPilot Rover SITL process and an observer on its SERIAL1. Use as a context manager. home: where the
     vehicle starts (lat, lon deg, alt m, heading deg); params: parameters over the model's defaults (its system id
-    is MAV_SYSID there, 1 by default; SYSID_THISMAV before ArduPilot 4.7)."""
+    is MAV_SYSID there, 1 by default; SYSID_THISMAV before ArduPilot 4.7); serial2: SERIAL2's (TELEM2's) device,
+    e.g. "uart:/dev/pts/4" (SITL's own default otherwise)."""
 
     def __init__(
         self,
@@ -105,8 +106,9 @@ class RoverSitl:
         *,
         params: dict[str, float] | None = None,
         home: tuple[float, float, float, float] = HOME,
+        serial2: str | None = None,
     ) -> None:
-        self.binary, self.workdir, self.home = binary, workdir, home
+        self.binary, self.workdir, self.home, self.serial2 = binary, workdir, home, serial2
         self.system_id = int((params or {}).get("MAV_SYSID", 1))
         self.model, parm_files = MODELS[model]
         self.instance = free_instance()
@@ -143,6 +145,8 @@ class RoverSitl:
             "--home",
             home,
         ]
+        if self.serial2:
+            command += ["--serial2", self.serial2]
         self.log = open(self.workdir / "ardurover.log", "w")  # closed in __exit__
         self.process = subprocess.Popen(command, cwd=self.workdir, stdout=self.log, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + 30
