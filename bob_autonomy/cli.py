@@ -91,7 +91,12 @@ def _parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="drive one MAVLink vehicle as an agent of the swarm")
     run.add_argument("--config", help="TOML file with any of these settings (options given here win)")
     run.add_argument("--vehicle", help="vehicle connection: udpout:H:P, udpin:H:P, tcp:H:P or a device (required)")
-    run.add_argument("--baud", type=int, default=115200, help="serial baud rate")
+    run.add_argument(
+        "--baud",
+        type=int,
+        default=57600,
+        help="the vehicle link's serial baud rate (57600: ArduPilot's TELEM ports leave the factory at it)",
+    )
     run.add_argument("--system-id", type=int, help="the vehicle's MAVLink system id, agent = id - 1 (required)")
     run.add_argument("--kind", choices=["buoy", "motorboat", "ebot"], default="buoy")
     run.add_argument(

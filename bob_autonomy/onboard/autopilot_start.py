@@ -54,6 +54,10 @@ class AutopilotStartError(RuntimeError):
     """The autopilot cannot be brought into service; the message says why and what to change."""
 
 
+class NoHeartbeatError(AutopilotStartError):
+    """Nothing of the autopilot heard at all: a link that carries nothing we can read (wrong port or baud rate)."""
+
+
 @dataclass(frozen=True)
 class StartOptions:
     """How patient and how forceful the start-up is (wall seconds)."""
@@ -139,7 +143,7 @@ class AutopilotStarter:
                     f"this link carries autopilot system {heard}: start with --system-id {others[0]}, or set that "
                     f"autopilot's MAV_SYSID to {s.target_system} (each vessel of a swarm needs its own)"
                 )
-            raise AutopilotStartError(
+            raise NoHeartbeatError(
                 f"no HEARTBEAT from autopilot system {s.target_system} component 1 within {o.heartbeat_timeout_s:g} s:"
                 " check the link (port, baud rate) and the autopilot's MAV_SYSID"
             )

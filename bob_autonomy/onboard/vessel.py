@@ -41,7 +41,7 @@ from bob_autonomy.ground.params import ParameterStore
 from bob_autonomy.ground.supervisor import Supervisor, behavior_params
 from bob_autonomy.network.mesh import LinkMesh
 from bob_autonomy.onboard.autopilot import MOTORBOAT, AutopilotSession
-from bob_autonomy.onboard.autopilot_start import AutopilotStarter, AutopilotStartError, StartOptions
+from bob_autonomy.onboard.autopilot_start import AutopilotStarter, AutopilotStartError, NoHeartbeatError, StartOptions
 from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline
 from bob_autonomy.onboard.senses import EbotSenses
 from bob_autonomy.onboard.vehicle_link import BUOY, EBOT, VehicleLink
@@ -101,7 +101,7 @@ class VesselConfig:
     max_thrust_fraction: float = 1.0
     heartbeat_timeout_s: float = 3.0
     arm_timeout_s: float = 10.0
-    baud: int = 115200
+    baud: int = 57600  # the vehicle link's, on a serial port: ArduPilot's TELEM ports' factory rate (SERIALn_BAUD 57)
     ebot: EbotConfig = field(default_factory=EbotConfig)
     gcs: str | None = None
     gcs_baud: int = 57600  # a serial ground-station link's (a SiK telemetry radio's factory rate)
@@ -403,6 +403,8 @@ class Vessel(VesselLinks, AutopilotDriving):
         )
         try:
             profile = starter.run()
+        except NoHeartbeatError as error:
+            raise VehicleError(f"vehicle {c.system_id} on {c.vehicle!r}: {error}{self._baud_hint()}") from None
         except AutopilotStartError as error:
             raise VehicleError(f"vehicle {c.system_id} on {c.vehicle!r}: {error}") from None
         if profile is None:

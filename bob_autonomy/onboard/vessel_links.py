@@ -14,7 +14,8 @@ from bob_autonomy.ground.gcs import AutopilotCommand, GcsComponent
 from bob_autonomy.onboard.autopilot_start import RESULT_WORDS
 from bob_autonomy.onboard.senses import EbotSenses
 from bob_autonomy.onboard.vehicle_link import VehicleLink
-from firmware_bridge.links import Link, LinkError, SerialLink, TcpLink, open_link
+from firmware_bridge.baud_probe import find_mavlink_baud
+from firmware_bridge.links import Link, LinkError, SerialLink, TcpLink, open_link, parse_connection_string
 from firmware_bridge.tlog import TlogWriter
 
 if TYPE_CHECKING:
@@ -79,6 +80,29 @@ class VesselLinks:
             self._from_vehicle.append(bytes(msg.get_msgbuf()))
             if len(self._from_vehicle) > MAX_ROUTED_BACKLOG:
                 del self._from_vehicle[: len(self._from_vehicle) - MAX_ROUTED_BACKLOG]
+
+    def _baud_hint(self) -> str:
+        """For a serial vehicle link that carried no HEARTBEAT: that it carried nothing at all, or the baud rate it
+        does carry MAVLink at, said as what to change (the port is closed to listen at other rates; the vessel does
+        not start), else ""."""
+        kind, device, _port = parse_connection_string(self.config.vehicle)
+        if kind != "serial":
+            return ""
+        if self.vehicle.decoder.counters.bytes_fed == 0:
+            return (
+                ". Not a byte came on this port: check that it is the autopilot's (its TX wired to our RX, a "
+                "common ground) and that the autopilot is powered"
+            )
+        self.vehicle_link.close()
+        baud = find_mavlink_baud(device, self.config.baud)
+        if baud is None:
+            return ""
+        # ArduPilot's SERIALn_BAUD is in thousands: 57 for 57,600, 921 for 921,600
+        return (
+            f". This port carries MAVLink at {baud} baud, not {self.config.baud}: start with --baud {baud} (baud = "
+            f"{baud} in the vessel file), or set the autopilot port's SERIALn_BAUD to {self.config.baud // 1000}"
+            f" (it is {baud // 1000} now)"
+        )
 
     def _say(self, severity: int, text: str) -> None:
         """Tell the ground station (STATUSTEXT, MAV_SEVERITY_*) and the log: `GcsComponent.notify` does both."""

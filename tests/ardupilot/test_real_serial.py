@@ -1,6 +1,6 @@
 """bob-autonomy and ArduPilot's own Rover SITL on a serial line, as on a boat: the autopilot's TELEM2 port (SERIAL2:
 MAVLink 2 at ArduPilot's default 57,600 baud, `--serial2 uart:PATH`) wired to the companion computer's
-USB-serial adapter (pseudo-terminals joined by tests/ardupilot/serial_cable.py). `SIM_BAUDLIMIT_EN = 1` makes the
+USB-serial adapter (pseudo-terminals joined by tests/serial_cable.py). `SIM_BAUDLIMIT_EN = 1` makes the
 SITL hold each port to its baud rate, 5,760 bytes/s each way at 57,600 baud (libraries/AP_HAL_SITL/UARTDriver.cpp
 `handle_writing_from_writebuffer_to_device`), so its streams share the line as they would on the boat.
 
@@ -15,8 +15,11 @@ import threading
 import time
 
 import numpy as np
+import pytest
 from serial_cable import SerialCable
 from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, drive, local_xy, vessel_config
+
+from bob_autonomy.onboard.vessel import VehicleError, Vessel
 
 pytestmark = NEEDS_SITL
 TELEM2 = {"SIM_BAUDLIMIT_EN": 1, "SERIAL2_PROTOCOL": 2, "SERIAL2_BAUD": 57}
@@ -126,3 +129,18 @@ def test_an_adapter_shaken_loose_for_four_seconds_hands_the_boat_to_ardupilot_an
     assert any(abs(rc[2] - 1500) > 50 or abs(rc[3] - 1500) > 50 for rc in again)
     held = [float(np.hypot(*(xy - goal))) for t, xy, _h in track if t > track[-1][0] - 10.0]
     assert held and max(held) < 5.0, f"the last 10 s {held}"
+
+
+def test_a_vessel_at_another_baud_rate_than_telem2_is_told_which_rate_to_use(tmp_path) -> None:
+    """ArduPilot's TELEM2 set to 921,600 baud (SERIAL2_BAUD 921), the vessel at its default 57,600: what it reads is
+    noise; it says the rate the port carries MAVLink at and what to change, and does not start."""
+    at_921600 = {**TELEM2, "SERIAL2_BAUD": 921}
+    with SerialCable(tmp_path) as cable:
+        sitl = RoverSitl(BINARY, "omni", tmp_path, params=at_921600, serial2=f"uart:{cable.autopilot_path}")
+        with sitl:
+            sitl.wait_initialised()
+            vessel = Vessel(vessel_config(sitl, GOAL, vehicle=str(cable.companion_path), arm_timeout_s=5.0))
+            with pytest.raises(VehicleError) as caught:
+                vessel.arm()
+    assert "carries MAVLink at 921600 baud, not 57600: start with --baud 921600" in str(caught.value)
+    assert not any(armed for _t, _mode, armed in sitl.seen.modes)

@@ -4,14 +4,17 @@ joins two UARTs.
 
 The relay counts the bytes each way with their times (the link's load), can spoil bytes on the wire (dropped or
 with one bit flipped, each with its own probability per byte, from a seeded generator: a marginal cable or
-radio), and can unplug and plug in again the companion's end (its path gone, then a new device behind it).
+radio), and can unplug and plug in again the companion's end (its path gone, then a new device behind it). When
+the two ends set different baud rates, every byte arrives as noise, as a UART reading at the wrong rate sees it.
 """
 
 from __future__ import annotations
 
 import errno
+import fcntl
 import os
 import select
+import struct
 import threading
 import time
 import tty
@@ -29,11 +32,22 @@ class WireCounts:
     dropped: int = 0
     flipped: int = 0
     lost: int = 0  # bytes the far end could not take (unplugged, or nobody reading it and its buffer full)
+    misread: int = 0  # bytes read as noise at the far end, set to another baud rate
 
     def bytes_per_s(self, start_s: float, end_s: float) -> float:
         """Mean load between two wall times (time.monotonic()), bytes per second."""
         carried = sum(n for t, n in self.chunks if start_s <= t < end_s)
         return carried / max(end_s - start_s, 1e-9)
+
+
+TCGETS2 = 0x802C542A  # Linux ioctl: struct termios2, whose c_ispeed and c_ospeed are the rates in baud
+_TERMIOS2 = struct.Struct("<4IB19sII")
+
+
+def baud_of(fd: int) -> int:
+    """The output baud rate a terminal is set to (any rate: ArduPilot sets its UART's with BOTHER)."""
+    raw = fcntl.ioctl(fd, TCGETS2, bytes(_TERMIOS2.size))
+    return _TERMIOS2.unpack(raw)[-1]
 
 
 class _PtyEnd:
@@ -130,6 +144,9 @@ class SerialCable:
                     if far is None:
                         counts.lost += len(data)
                         continue
+                    if baud_of(self._ends[source].slave) != baud_of(far.slave):
+                        data = self._rng.integers(0, 256, len(data), dtype=np.uint8).tobytes()  # framing errors
+                        counts.misread += len(data)
                     try:
                         os.write(far.master, data)
                     except BlockingIOError:
