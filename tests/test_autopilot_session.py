@@ -659,3 +659,8 @@ def test_frames_lost_on_the_line_are_counted_from_the_autopilots_sequence_number
         if k % 10 != 3 and k not in (250, 251, 252, 253, 254, 255, 256, 257):  # one in ten lost; 8 across a wrap
             s.handle(_parse(frame)[0])
     assert s.frames_lost == 60 + 8 - 1  # k = 253 is both
+    late = _session()
+    for k in (0, 1, 3, 2, 4, 5, 7, 9, 8, 10):  # 2 and 8 late, 6 lost
+        autopilot.seq = k
+        late.handle(_parse(autopilot.heartbeat_encode(10, 3, 0, 0, 4).pack(autopilot))[0])
+    assert late.frames_lost == 1

@@ -560,10 +560,18 @@ class AutopilotSession:
     def _count_sequence(self, seq: int) -> None:
         """Count the autopilot's frames lost on the way: each MAVLink frame carries a sequence number that its
         sender increments per link (mod 256), so a gap of k means k frames spoiled or dropped, as MAVProxy counts
-        a link's loss."""
-        if self._last_seq is not None:
-            self.frames_lost += (seq - self._last_seq - 1) % 256
-        self._last_seq = seq
+        a link's loss. A frame from behind the newest (a step back of under 128) came late, not lost: it takes
+        back the loss its gap was counted as (a UDP link may reorder; so does our simulated autopilot, whose
+        queued replies can follow a newer frame)."""
+        if self._last_seq is None:
+            self._last_seq = seq
+            return
+        gap = (seq - self._last_seq - 1) % 256
+        if gap < 128:
+            self.frames_lost += gap
+            self._last_seq = seq
+        elif self.frames_lost > 0:
+            self.frames_lost -= 1
 
     def lagging_messages(self, now_s: float, window_s: float) -> list[int]:
         """Requested messages as good as absent over the last `window_s`: under a quarter of the asked rate and
