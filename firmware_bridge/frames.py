@@ -153,6 +153,43 @@ def pack_frame(message_class: type, args: Sequence[Any], seq: int, system_id: in
     return body + checksum(body[1:] + spec._crc_extra_byte).to_bytes(2, "little")
 
 
+V1_MARKER = 0xFE
+
+
+def renumber(data: bytes | bytearray, first_seq: int) -> tuple[bytes, int]:
+    """The frames of `data` numbered first_seq, first_seq + 1, ... (mod 256), their checksums made again; returns
+    (the frames, the next number). What a link numbers at send time, as ArduPilot numbers each channel's frames
+    (one counter per link, taken when the frame is finalised): a vehicle that answers several peers gives each
+    its own unbroken count. Signed frames (the signature covers the number), frames of a message id the dialect
+    does not know and bytes outside a whole frame are passed on as they are and take no number."""
+    out = bytearray()
+    seq, pos, n = first_seq & 0xFF, 0, len(data)
+    while pos < n:
+        marker = data[pos]
+        if marker not in (V2_MARKER, V1_MARKER) or pos + 3 > n:
+            out.append(marker)
+            pos += 1
+            continue
+        v2 = marker == V2_MARKER
+        crc_end = pos + data[pos + 1] + (V2_HEADER_LEN if v2 else 6)
+        end = crc_end + 2 + (13 if v2 and data[pos + 2] & SIGNED_FLAG else 0)
+        if end > n:
+            out += data[pos:]
+            break
+        msg_id = (data[pos + 7] | data[pos + 8] << 8 | data[pos + 9] << 16) if v2 else data[pos + 5]
+        spec = layout(msg_id)
+        if end != crc_end + 2 or spec is None:
+            out += data[pos:end]
+        else:
+            frame = bytearray(data[pos:crc_end])
+            frame[4 if v2 else 2] = seq
+            seq = (seq + 1) & 0xFF
+            out += frame
+            out += frame_checksum(frame, len(frame), spec.crc_extra).to_bytes(2, "little")
+        pos = end
+    return bytes(out), seq
+
+
 class FrameHeader:
     """A checked frame's identity without its fields, for a message its receiver does not read (it is still
     counted and its source still judged): what pymavlink's message answers to get_type, get_srcSystem,

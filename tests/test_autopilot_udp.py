@@ -115,3 +115,42 @@ def test_a_ground_station_on_udp(served: _Served) -> None:
         assert hb.base_mode & m.MAV_MODE_FLAG_SAFETY_ARMED and hb.system_status == m.MAV_STATE_STANDBY
     finally:
         conn.close()
+
+
+def _listen(conn, seconds: float) -> list:
+    """Everything `conn` receives for `seconds`."""
+    messages, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        if (msg := conn.recv_match(blocking=True, timeout=0.05)) is not None:
+            messages.append(msg)
+    return messages
+
+
+@pytest.mark.xdist_group("realtime")
+def test_each_ground_station_sees_an_unbroken_sequence_whatever_the_vehicle_answers_the_other(served: _Served) -> None:
+    """Two ground stations on one vehicle's port: one fetches every parameter (all of them reach it, none the
+    other) and sets streams, the other only listens. pymavlink counts a gap in a source's sequence numbers as
+    lost frames (`mav_loss`, MAVProxy's link loss): each station's count stays 0, as with ArduPilot, whose every
+    link numbers its own frames (before: 256 and 120)."""
+    port = served.server.ports[0]
+    asking = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+    watching = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=254, source_component=190)
+    try:
+        for conn in (asking, watching):
+            conn.mav.heartbeat_send(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            conn.wait_heartbeat(timeout=3)
+        asking.mav.param_request_list_send(1, 1)
+        for message_id in (m.MAVLINK_MSG_ID_ATTITUDE, m.MAVLINK_MSG_ID_SCALED_IMU):
+            asking.mav.command_long_send(1, 1, m.MAV_CMD_SET_MESSAGE_INTERVAL, 0, message_id, 100_000, 0, 0, 0, 0, 0)
+        heard: dict[str, list] = {"asking": [], "watching": []}
+        for _ in range(4):  # both read in turn, 0.5 s each, so neither's socket buffer overflows
+            heard["asking"] += _listen(asking, 0.5)
+            heard["watching"] += _listen(watching, 0.5)
+        params = [msg for msg in heard["asking"] if msg.get_type() == "PARAM_VALUE"]
+        assert params and len({p.param_id for p in params}) == params[0].param_count
+        assert not any(msg.get_type() == "PARAM_VALUE" for msg in heard["watching"])
+        assert len(heard["watching"]) > 20
+        assert (asking.mav_loss, watching.mav_loss) == (0, 0)
+    finally:
+        asking.close()
+        watching.close()

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_bridge.commands import Encoder
 from firmware_bridge.decoder import TelemetryDecoder, classify_frame
-from firmware_bridge.frames import decode_unsigned, layout, pack_frame
+from firmware_bridge.frames import decode_unsigned, layout, pack_frame, renumber
 from firmware_bridge.telemetry import TelemetryEncoder
 
 INTEGER_RANGES = {
@@ -152,3 +152,37 @@ def test_classify_frame_still_refuses_a_bad_checksum_and_signed_frames_go_throug
     assert verdict == "ok" and msg._signed
     decoder = TelemetryDecoder(source_system=2)
     assert [type(r).__name__ for r in decoder.feed(TelemetryEncoder(2).attitude(1.0, 0.5))] == ["CompassReading"]
+
+
+def test_renumber_gives_the_frames_pymavlink_packs_at_the_new_numbers_and_passes_on_what_it_cannot_number() -> None:
+    """renumber against pymavlink's own pack at the new sequence numbers (MAVLink 2 and 1, across the wrap at
+    255); a signed frame (its signature covers the number), an unknown message id, stray bytes and a cut-off frame
+    are passed on untouched and take no number."""
+    rng = np.random.default_rng(11)
+    classes = [mavlink.MAVLink_heartbeat_message, mavlink.MAVLink_gps_raw_int_message,
+               mavlink.MAVLink_param_value_message, mavlink.MAVLink_statustext_message]  # fmt: skip
+    mav = mavlink.MAVLink(None, srcSystem=4, srcComponent=1)
+    messages = [(classes[k % 4](*random_args(classes[k % 4], rng, 0.3)), k % 3 == 0) for k in range(40)]
+
+    def packed(numbers: list[int]) -> bytes:
+        frames = []
+        for (msg, v1), seq in zip(messages, numbers, strict=True):
+            mav.seq = seq  # pymavlink's pack numbers with mav.seq; only send advances it
+            frames.append(bytes(msg.pack(mav, force_mavlink1=v1)))
+        return b"".join(frames)
+
+    sent = packed([int(x) for x in rng.integers(0, 256, 40)])  # numbered as another link's frames would be
+    expected = packed([(250 + k) % 256 for k in range(40)])
+    assert sent != expected and sent[0] == 0xFE and expected[0] == 0xFE
+    assert renumber(sent, 250) == (expected, (250 + 40) % 256)
+
+    signer = mavlink.MAVLink(None, srcSystem=4, srcComponent=1)
+    signer.signing.secret_key, signer.signing.sign_outgoing, signer.signing.timestamp = bytes(range(32)), True, 9
+    signed = bytes(signer.heartbeat_encode(1, 2, 3, 4, 5).pack(signer))
+    unknown = bytearray(pack_frame(mavlink.MAVLink_heartbeat_message, (1, 2, 3, 4, 5, 3), 0, 4, 1))
+    unknown[7] = 0xEE  # message id 238: not in the dialect
+    head = pack_frame(mavlink.MAVLink_heartbeat_message, (1, 2, 3, 4, 5, 3), 9, 4, 1)
+    data = b"\x00\x11" + signed + bytes(unknown) + head + head[:7]
+    out, after = renumber(data, 17)
+    assert after == 18 and out == b"\x00\x11" + signed + bytes(unknown) + pack_frame(
+        mavlink.MAVLink_heartbeat_message, (1, 2, 3, 4, 5, 3), 17, 4, 1) + head[:7]  # fmt: skip

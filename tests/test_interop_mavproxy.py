@@ -266,5 +266,11 @@ def test_mavproxy_shows_a_simulated_vehicle_of_a_process_fleet(ground) -> None:
         position = (int(match.group(1)) / 1e7, int(match.group(2)) / 1e7)
         assert _distance_m(position, fleet.origin) < 300.0, position  # at its start point near the origin
         session.retry("status HEARTBEAT", r"HEARTBEAT \{type : 11, autopilot : 3")  # a surface boat, ArduPilot-like
+        # This port's frames are numbered for this link alone, as on each ArduPilot channel: MAVProxy's loss (from
+        # gaps in the numbers) is the link's, not the count of replies the vehicle sent the vessel.
+        time.sleep(3.0)
+        link = session.command("link", r"\((\d+) packets, \d+ bytes, [\d.]+s delay, (\d+) lost")
+        packets, lost = int(link.group(1)), int(link.group(2))
+        assert packets > 100 and lost <= packets // 100, (packets, lost)
     finally:
         session.close()

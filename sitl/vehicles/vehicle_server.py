@@ -19,8 +19,12 @@ GPS_RAW_INT, ATTITUDE, SCALED_IMU and WHEEL_DISTANCE as the sensors deliver,
 and GLOBAL_POSITION_INT with every GPS fix. Replies go to the sender; telemetry and the
 vehicle's announcements (STATUSTEXT, PARAM_VALUE echoes, HOME_POSITION) to
 every live peer. All frames of one vehicle and one step go out in one datagram
-to each peer. A datagram whose handling raises is counted (`datagram_errors`),
-logged and skipped: one bad datagram never ends a fleet.
+to each peer. Each peer is a link of its own, as each of ArduPilot's MAVLink
+channels is: its frames are numbered at send time from its own counter
+(`firmware_bridge.frames.renumber`), so a peer sees an unbroken sequence whatever
+the vehicle answered the others, and a ground station's loss figure is the link's.
+A datagram whose handling raises is counted (`datagram_errors`), logged and
+skipped: one bad datagram never ends a fleet.
 
 Every MAVLink frame received or sent is appended to a telemetry log in
 MAVProxy's `.tlog` format: per frame, an 8-byte big-endian count of
@@ -38,6 +42,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from firmware_bridge.frames import renumber
 from firmware_bridge.readings import SensorReadings
 from firmware_bridge.tlog import TlogWriter, split_frames
 from sitl.vehicles.bodies import BODY_SPECS
@@ -83,6 +88,7 @@ class VehicleEndpoint:
         self.sock.setblocking(False)
         self.address = self.sock.getsockname()
         self.peers: dict[tuple[str, int], float] = {}  # address -> wall time last heard (time.monotonic)
+        self.next_seq: dict[tuple[str, int], int] = {}  # address -> the sequence number of its next frame
         self.bytes_in = self.bytes_out = 0
         self.errors = 0  # datagrams whose handling raised (logged, skipped)
 
@@ -94,6 +100,7 @@ class VehicleEndpoint:
         now = time.monotonic() if now_wall_s is None else now_wall_s
         for address in [a for a, heard in self.peers.items() if now - heard > PEER_TIMEOUT_S]:
             del self.peers[address]
+            self.next_seq.pop(address, None)
         return list(self.peers)
 
     def read(self, t_s: float) -> int:
@@ -136,14 +143,18 @@ class VehicleEndpoint:
             self._send_to(data, peers)
 
     def _send_to(self, data: bytes, peers: Sequence[tuple[str, int]]) -> None:
+        """Send `data` to each peer, numbered on that peer's link; the log gets the first peer's copy."""
+        logged = False
         for peer in peers:
+            numbered, self.next_seq[peer] = renumber(data, self.next_seq.get(peer, 0))
             try:
-                self.sock.sendto(data, peer)
-                self.bytes_out += len(data)
+                self.sock.sendto(numbered, peer)
+                self.bytes_out += len(numbered)
             except (BlockingIOError, ConnectionRefusedError):
                 pass  # a full buffer or a vanished peer: telemetry is best effort, as on a radio link
-        if self.tlog is not None:
-            self.tlog.write(data)
+            if self.tlog is not None and not logged:
+                self.tlog.write(numbered)
+                logged = True
 
     def close(self) -> None:
         self.sock.close()
