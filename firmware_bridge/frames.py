@@ -24,6 +24,8 @@ from typing import Any
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from firmware_bridge.tlog import split_frames
+
 V2_MARKER = 0xFD
 # marker, payload length, incompat flags, compat flags, seq, system, component, message id low 16 bits, high 8
 V2_HEADER = struct.Struct("<BBBBBBBHB")
@@ -153,40 +155,26 @@ def pack_frame(message_class: type, args: Sequence[Any], seq: int, system_id: in
     return body + checksum(body[1:] + spec._crc_extra_byte).to_bytes(2, "little")
 
 
-V1_MARKER = 0xFE
-
-
 def renumber(data: bytes | bytearray, first_seq: int) -> tuple[bytes, int]:
     """The frames of `data` numbered first_seq, first_seq + 1, ... (mod 256), their checksums made again; returns
     (the frames, the next number). What a link numbers at send time, as ArduPilot numbers each channel's frames
     (one counter per link, taken when the frame is finalised): a vehicle that answers several peers gives each
-    its own unbroken count. Signed frames (the signature covers the number), frames of a message id the dialect
-    does not know and bytes outside a whole frame are passed on as they are and take no number."""
+    its own unbroken count. Signed frames (the signature covers the number) and frames of a message id the
+    dialect does not know are passed on as they are and take no number; bytes outside a whole frame are dropped
+    (`split_frames`)."""
     out = bytearray()
-    seq, pos, n = first_seq & 0xFF, 0, len(data)
-    while pos < n:
-        marker = data[pos]
-        if marker not in (V2_MARKER, V1_MARKER) or pos + 3 > n:
-            out.append(marker)
-            pos += 1
-            continue
-        v2 = marker == V2_MARKER
-        crc_end = pos + data[pos + 1] + (V2_HEADER_LEN if v2 else 6)
-        end = crc_end + 2 + (13 if v2 and data[pos + 2] & SIGNED_FLAG else 0)
-        if end > n:
-            out += data[pos:]
-            break
-        msg_id = (data[pos + 7] | data[pos + 8] << 8 | data[pos + 9] << 16) if v2 else data[pos + 5]
-        spec = layout(msg_id)
-        if end != crc_end + 2 or spec is None:
-            out += data[pos:end]
-        else:
-            frame = bytearray(data[pos:crc_end])
-            frame[4 if v2 else 2] = seq
-            seq = (seq + 1) & 0xFF
+    seq = first_seq & 0xFF
+    for frame in split_frames(data):
+        v2 = frame[0] == V2_MARKER
+        spec = layout(int.from_bytes(frame[7:10], "little") if v2 else frame[5])
+        if spec is None or (v2 and frame[2] & SIGNED_FLAG):
             out += frame
-            out += frame_checksum(frame, len(frame), spec.crc_extra).to_bytes(2, "little")
-        pos = end
+            continue
+        body = bytearray(frame[:-2])
+        body[4 if v2 else 2] = seq
+        seq = (seq + 1) & 0xFF
+        out += body
+        out += frame_checksum(body, len(body), spec.crc_extra).to_bytes(2, "little")
     return bytes(out), seq
 
 
