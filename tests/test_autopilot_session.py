@@ -353,6 +353,7 @@ class ScriptedAutopilot:
         self.lose: dict[str, int] = {}  # how many of the first messages of each name a noisy line loses
         self.intervals: dict[int, float] = {}  # message id: interval (us) set by SET_MESSAGE_INTERVAL
         self.group_requests = 0  # REQUEST_DATA_STREAMs heard
+        self.ground_station_arming = False  # a ground station on the same link (a router) arms it: every pump
 
     def send(self, data: bytes) -> None:
         self.inbox += data
@@ -370,8 +371,12 @@ class ScriptedAutopilot:
         flags = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
         self._out(self.mav.heartbeat_encode(10, 3, flags, self.mode, 4))
         self._out(self.mav.gps_raw_int_encode(0, self.fix_type, 0, 0, 0, 0, 0, 0, 0, 9))
+        if self.ground_station_arming:  # its answer, to (255, 190), as a router passes it to every output
+            arm = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+            self._out(self.mav.command_ack_encode(arm, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
         for msg in _parse(bytes(self.inbox)):
             name = msg.get_type()
+            sender = (msg.get_srcSystem(), msg.get_srcComponent())  # ArduPilot addresses its COMMAND_ACK to it
             if name == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
                 name = "SET_MESSAGE_INTERVAL"
             if self.lose.get(name, 0) > 0:
@@ -379,7 +384,7 @@ class ScriptedAutopilot:
                 continue
             if name == "SET_MESSAGE_INTERVAL":
                 self.intervals[int(msg.param1)] = msg.param2
-                self._out(self.mav.command_ack_encode(msg.command, 0))
+                self._out(self.mav.command_ack_encode(msg.command, 0, 0, 0, *sender))
             elif name == "REQUEST_DATA_STREAM":
                 self.group_requests += 1
             elif name == "PARAM_REQUEST_READ":
@@ -390,21 +395,21 @@ class ScriptedAutopilot:
                 self.overrides += 1
             elif name == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_DO_SET_MODE:
                 self.mode = int(msg.param2)
-                self._out(self.mav.command_ack_encode(msg.command, 0))
+                self._out(self.mav.command_ack_encode(msg.command, 0, 0, 0, *sender))
             elif name == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
                 self.arm_commands += 1
                 if self.arm_lag_s and not self.refusals:
-                    ack = self.mav.command_ack_encode(msg.command, 0)
+                    ack = self.mav.command_ack_encode(msg.command, 0, 0, 0, *sender)
                     self.delayed.append((time.monotonic() + self.arm_lag_s, ack))
                 elif self.refusals > 0:
                     self.refusals -= 1
-                    self._out(self.mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_FAILED))
+                    self._out(self.mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_FAILED, 0, 0, *sender))
                     self._out(self.mav.statustext_encode(3, b"PreArm: GPS not healthy"))
                 else:
                     self.armed = True
-                    self._out(self.mav.command_ack_encode(msg.command, 0))
+                    self._out(self.mav.command_ack_encode(msg.command, 0, 0, 0, *sender))
             elif name == "COMMAND_LONG":
-                self._out(self.mav.command_ack_encode(msg.command, 0))
+                self._out(self.mav.command_ack_encode(msg.command, 0))  # unaddressed, as MAVLink 1 firmware
         self.inbox.clear()
 
 
@@ -413,7 +418,7 @@ def _start(params: dict[str, float], refusals: int = 0, kind: str = BUOY, arm_la
     autopilot = ScriptedAutopilot(session, params, refusals)
     autopilot.arm_lag_s = arm_lag_s
     said: list[str] = []
-    opts = StartOptions(neutral_lead_s=0.05, param_timeout_s=0.3, arm_timeout_s=6.0, **options)
+    opts = StartOptions(**{"neutral_lead_s": 0.05, "param_timeout_s": 0.3, "arm_timeout_s": 6.0, **options})
     notify = lambda _severity, text: said.append(text)  # noqa: E731
     starter = AutopilotStarter(session, autopilot.send, autopilot.pump, lambda: False, notify, opts)
     return starter, autopilot, said
@@ -452,6 +457,21 @@ def test_start_up_arms_over_a_link_that_answers_late(answer_s: float, lag_s: flo
     assert autopilot.armed and autopilot.arm_commands == commands
     expected = f"autopilot refused to arm (no answer within {answer_s:g} s)"
     assert [t for t in said if "refused to arm" in t] == [expected] * complaints
+
+
+def test_a_ground_stations_arming_answered_on_a_shared_link_is_not_taken_for_ours() -> None:
+    """A router (MAVProxy, mavlink-router) passes every autopilot frame to every output, so the vessel hears the
+    COMMAND_ACKs ArduPilot addresses to a ground station (target_system, target_component: the sender,
+    GCS_Common.cpp handle_command_long). While the autopilot refuses the vessel, a ground station's accepted
+    arming must not end the vessel's start-up as armed (the old session took any ARM_DISARM ack)."""
+    starter, autopilot, said = _start(OMNI, refusals=99, arm_timeout_s=2.5)
+    autopilot.ground_station_arming = True
+    with pytest.raises(AutopilotStartError, match=r"would not arm within 2.5 s: PreArm: GPS not healthy"):
+        starter.run()
+    assert not autopilot.armed and autopilot.arm_commands >= 2
+    assert starter.session.acks_for_others > 0
+    refusals = [t for t in said if "refused to arm" in t]
+    assert refusals and all(t.startswith("autopilot refused to arm (failed") for t in refusals)
 
 
 def test_start_up_asks_again_for_what_a_noisy_line_lost() -> None:

@@ -26,15 +26,19 @@ FENCE = [(44.99, 6.99), (44.99, 7.01), (45.01, 7.01), (45.01, 6.99)]
 class Vessel:
     """One vessel's autonomy component on its own UDP socket, served by a thread; it sends everything to the
     client's port. While its behaviour runs it moves its reported position most of the way to its first
-    goal every tick (a stand-in for the real process). `drop(frame)` may drop outgoing frames."""
+    goal every tick (a stand-in for the real process). `drop(frame)` may drop outgoing frames; `routed(frame)`
+    gives frames its autopilot sent, which the vessel routes to the client before that frame."""
 
-    def __init__(self, system_id: int, client: tuple[str, int], store: ParameterStore, *, key=None, drop=None):
+    def __init__(
+        self, system_id: int, client: tuple[str, int], store: ParameterStore, *, key=None, drop=None, routed=None
+    ):
         self.system_id = system_id
         self.client = client
         self.component = GcsComponent(
             system_id, store, signing_key=key, heartbeat_period_s=0.2, mission_timeout_s=0.25, mission_retries=3
         )
         self.drop: Callable[[bytes], bool] | None = drop
+        self.routed: Callable[[bytes], list[bytes]] | None = routed
         self.dropped = 0
         frame = LocalFrame(*HOME)
         self.position = frame.to_geodetic(10.0 * system_id, -20.0)
@@ -57,6 +61,8 @@ class Vessel:
             self.component.report_position(float(self.position[0]), float(self.position[1]), heading_rad=0.0)
             self.component.tick()
             for frame in self.component.outgoing():
+                for before in self.routed(frame) if self.routed is not None else []:
+                    self.sock.sendto(before, self.client)
                 if self.drop is not None and self.drop(frame):
                     self.dropped += 1
                     continue
@@ -73,13 +79,15 @@ def make_fleet(tmp_path):
     """make_fleet(ids, key=..., client_key=..., stores={id: store}, drops={id: fn}) -> (client, {id: Vessel})."""
     opened: list = []
 
-    def make(ids=(1, 2, 3), *, key=None, client_key=None, stores=None, drops=None):
+    def make(ids=(1, 2, 3), *, key=None, client_key=None, stores=None, drops=None, routed=None):
         client = MissionClient("udpin:127.0.0.1:0", signing_key=client_key, timeout_s=0.5, retries=2)
         opened.append(client)
         vessels = {}
         for sid in ids:
             store = (stores or {}).get(sid) or ParameterStore(tmp_path / f"vessel{sid}.json")
-            vessels[sid] = Vessel(sid, client.local_address, store, key=key, drop=(drops or {}).get(sid))
+            vessels[sid] = Vessel(
+                sid, client.local_address, store, key=key, drop=(drops or {}).get(sid), routed=(routed or {}).get(sid)
+            )
             opened.append(vessels[sid])
         return client, vessels
 
@@ -174,6 +182,25 @@ def test_refused_commands_and_uploads_say_why(make_fleet) -> None:
         client.command(mavlink.MAV_CMD_USER_1, (42,))
     with pytest.raises(ParamError, match="3 vertices"):
         client.upload_fence(FENCE[:2])
+
+
+def test_an_answer_the_vessel_routes_from_its_autopilot_to_itself_is_not_taken_for_the_clients(make_fleet) -> None:
+    """The vessel passes its autopilot's frames on to the ground station, among them the COMMAND_ACKs that answer
+    the vessel's own commands: same system id as the client (255), addressed to the vessel's component 191. Just
+    before the vessel refuses the client's DO_SET_SERVO, its autopilot's acceptance of a DO_SET_SERVO of the
+    vessel's goes by: the client must still report the refusal (it took the first ack for its system)."""
+    autopilot = mavlink.MAVLink(None, srcSystem=4, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
+
+    def autopilot_answer_first(frame: bytes) -> list[bytes]:
+        if frame[7:10] != bytes([77, 0, 0]):  # COMMAND_ACK
+            return []
+        ack = autopilot.command_ack_encode(mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 255, 191)
+        return [bytes(ack.pack(autopilot))]
+
+    client, _ = make_fleet((4,), routed={4: autopilot_answer_first})
+    client.discover(1, timeout_s=3)
+    with pytest.raises(MissionError, match="vessel 4: MAV_RESULT_UNSUPPORTED"):
+        client.command(mavlink.MAV_CMD_DO_SET_SERVO, (1, 1500))
 
 
 def test_signed_fleet(make_fleet) -> None:

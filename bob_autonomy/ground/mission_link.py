@@ -276,8 +276,10 @@ class FleetLink:
                 self._listeners.remove(q)
 
     def _for_us(self, msg) -> bool:
-        target = getattr(msg, "target_system", 0)
-        return target in (0, self.codec.system_id)
+        """Whether a reply is addressed to this ground station (its system and component, or 0): a vessel routes
+        its autopilot's answers to its own commands to the ground station too, from the same system id."""
+        system, component = getattr(msg, "target_system", 0), getattr(msg, "target_component", 0)
+        return system in (0, self.codec.system_id) and component in (0, self.codec.mav.srcComponent)
 
     # -- the fleet ------------------------------------------------------------------------------------------
 

@@ -412,7 +412,8 @@ class AutopilotSession:
         self.profile = AutopilotProfile()
         self.carry = ResolutionCarry()  # throttle and lateral finer than whole percent, spread over overrides
         self.params: dict[str, float] = {}
-        self.acks: deque = deque(maxlen=64)  # (t, command, result)
+        self.acks: deque = deque(maxlen=64)  # (t, command, result) of the COMMAND_ACKs addressed to us
+        self.acks_for_others = 0  # COMMAND_ACKs addressed to another sender on the link (a router passes them on)
         self.texts: deque = deque(maxlen=32)  # (t, severity, text)
         self.other_autopilots: set[int] = set()  # system ids of other autopilots heard on this link (start-up errors)
         self.rates = RateMeter()
@@ -473,9 +474,7 @@ class AutopilotSession:
                     pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
                     self.params[pid.rstrip("\x00")] = value
             elif name == "COMMAND_ACK":
-                self.acks.append((now, int(msg.command), int(msg.result)))
-                if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and msg.result == mavlink.MAV_RESULT_ACCEPTED:
-                    self.intervals_accepted = True
+                self._take_ack(msg, now)
             elif name == "STATUSTEXT":
                 text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
                 self.texts.append((now, int(msg.severity), text.rstrip("\x00")))
@@ -499,6 +498,25 @@ class AutopilotSession:
                 self.rc_in_t = now
         except (AttributeError, TypeError, ValueError, UnicodeError):
             pass  # a message we cannot read is the decoder's business; it never stops the session
+
+    def _take_ack(self, msg, now: float) -> None:
+        if not self._addressed_to_us(msg):
+            self.acks_for_others += 1
+            return
+        self.acks.append((now, int(msg.command), int(msg.result)))
+        if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and msg.result == mavlink.MAV_RESULT_ACCEPTED:
+            self.intervals_accepted = True
+
+    def _addressed_to_us(self, msg) -> bool:
+        """Whether a COMMAND_ACK answers us. ArduPilot addresses it to the command's sender (target_system,
+        target_component; GCS_Common.cpp handle_command_long), and a router (MAVProxy, mavlink-router) passes
+        those meant for a ground station to us too. We send as the autopilot's own system until `learn`, then as
+        its GCS id, always as our component; an ack with both targets 0 (MAVLink 1, older firmware) is taken."""
+        system, component = int(getattr(msg, "target_system", 0)), int(getattr(msg, "target_component", 0))
+        if system == 0 and component == 0:
+            return True
+        mav = self.encoder.mav
+        return component == mav.srcComponent and system in (mav.srcSystem, self.target_system)
 
     def _note_boot_time(self, boot_s: float) -> None:
         if self.boot_s is not None and boot_s < self.boot_s - REBOOT_BACKSTEP_S:
