@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from vessel_helpers import ORIGIN, SCALE, StandInVehicle
 
 from bob_autonomy.core.behavior_config import BehaviorChoice
@@ -232,6 +233,27 @@ def test_an_autopilot_heard_without_its_heartbeats_is_not_silent(stand_in: Stand
     stats = vessel.run(duration_s=20.0)
     assert driving_at and stats.silent_alarms == 0
     assert stats.commands > driving_at[0] + 50  # about 18 clock s more at 10 Hz: it drove on
+
+
+def test_a_parameter_a_ground_station_sets_while_driving_is_adopted_and_said(stand_in: StandInVehicle, caplog) -> None:
+    """A ground station on another port of the autopilot sets RC3_TRIM (the throttle channel's neutral) while the
+    vessel drives; the autopilot sends the new value to every link. The vessel's overrides follow it at once
+    and it says what changed."""
+    vessel = Vessel(_config(stand_in.port), clock=ScaledWallClock(SCALE))
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    param_set = bytes(gcs.param_set_encode(1, 1, b"RC3_TRIM", 1550.0, mavlink.MAV_PARAM_TYPE_INT16).pack(gcs))
+    set_trim = threading.Event()
+    driving_at = _once_driving(vessel, set_trim)
+    threading.Thread(target=lambda: set_trim.wait(30.0) and stand_in.from_ground.put(param_set), daemon=True).start()
+    with caplog.at_level("INFO"):
+        vessel.run(duration_s=12.0)
+    assert driving_at and vessel.autopilot.param_changes == [("RC3_TRIM", 1500.0, 1550.0)]
+    assert vessel.autopilot.profile.values["RC3_TRIM"] == 1550.0
+    said = [r.getMessage() for r in caplog.records if "RC3_TRIM" in r.getMessage()]
+    assert said == [
+        "autopilot parameter RC3_TRIM of vehicle 1 changed from 1500 to 1550 (by a ground station?): our RC "
+        "overrides follow it now; the controller keeps the model it was built with until the autonomy restarts"
+    ]
 
 
 def _once_driving(vessel: Vessel, event: threading.Event) -> list[int]:

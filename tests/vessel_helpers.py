@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import queue
 import socket
 import threading
 import tty
@@ -52,6 +53,7 @@ class StandInVehicle(threading.Thread):
         self.no_fix = threading.Event()  # set: its GPS has no fix (GPS_RAW_INT fix type 1, no satellites)
         self.no_attitude = threading.Event()  # set: it sends no ATTITUDE (no heading)
         self.no_heartbeat = threading.Event()  # set: its HEARTBEATs are lost (a noisy line), the rest comes
+        self.from_ground: queue.Queue[bytes] = queue.Queue()  # frames of a ground station on another port
         self.applied: list[np.ndarray] = []
 
     def run(self) -> None:
@@ -66,6 +68,8 @@ class StandInVehicle(threading.Thread):
             except TimeoutError:
                 pass
             now = self.clock.now()
+            while not self.from_ground.empty():  # answered on that port (not here); announcements go to all
+                self.vehicle.receive(self.from_ground.get_nowait(), now)
             if now < last:  # rebooted: its clock starts again
                 last = next_gps = next_att = now
             thrust = self.vehicle.actuator(now)

@@ -414,6 +414,7 @@ class AutopilotSession:
         self.params: dict[str, float] = {}
         self.acks: deque = deque(maxlen=64)  # (t, command, result) of the COMMAND_ACKs addressed to us
         self.acks_for_others = 0  # COMMAND_ACKs addressed to another sender on the link (a router passes them on)
+        self.param_changes: list[tuple[str, float, float]] = []  # (name, before, after) once the profile is learned
         self.texts: deque = deque(maxlen=32)  # (t, severity, text)
         self.other_autopilots: set[int] = set()  # system ids of other autopilots heard on this link (start-up errors)
         self.rates = RateMeter()
@@ -472,7 +473,7 @@ class AutopilotSession:
                 self.last_param_t = now
                 if math.isfinite(value):
                     pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
-                    self.params[pid.rstrip("\x00")] = value
+                    self._take_param(pid.rstrip("\x00"), value)
             elif name == "COMMAND_ACK":
                 self._take_ack(msg, now)
             elif name == "STATUSTEXT":
@@ -498,6 +499,16 @@ class AutopilotSession:
                 self.rc_in_t = now
         except (AttributeError, TypeError, ValueError, UnicodeError):
             pass  # a message we cannot read is the decoder's business; it never stops the session
+
+    def _take_param(self, name: str, value: float) -> None:
+        """A PARAM_VALUE. ArduPilot sends a parameter's new value to every link when anyone sets it
+        (GCS::send_parameter_value), so a ground station's change of one the profile was learned from is heard:
+        the profile is learned again (RC map and calibration, steering expo, GCS id act at the next override)."""
+        before = self.params.get(name)
+        self.params[name] = value
+        if before is not None and value != before and name in self.profile.values:
+            self.param_changes.append((name, before, value))
+            self.learn()
 
     def _take_ack(self, msg, now: float) -> None:
         if not self._addressed_to_us(msg):

@@ -324,6 +324,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._next_reopen_at = 0.0
         self._armed_seen: bool | None = None
         self._reboots_seen = 0
+        self._param_changes_seen = 0
         self._restart_due: float | None = None  # wall clock (time.monotonic) of the next start-up after a reboot
         self._gps_lost = False
         self._pose_wait_said = False  # said that the vessel holds still for want of a position or a heading

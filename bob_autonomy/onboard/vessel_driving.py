@@ -43,6 +43,7 @@ class AutopilotDriving:
     _ignoring_warned: bool
     _armed_seen: bool | None
     _reboots_seen: int
+    _param_changes_seen: int
     _restart_due: float | None
     stats: VesselStats
     _send: Callable[[bytes], None]  # VesselLinks
@@ -117,6 +118,14 @@ class AutopilotDriving:
         station), our overrides not taken, or telemetry too slow for the estimator."""
         self._watch_restart_and_arming()
         a = self.autopilot
+        for name, before, after in a.param_changes[self._param_changes_seen :]:
+            text = (
+                f"autopilot parameter {name} of vehicle {self.config.system_id} changed from {before:g} to {after:g} "
+                "(by a ground station?): our RC overrides follow it now; the controller keeps the model it was "
+                "built with until the autonomy restarts"
+            )
+            self._say(mavlink.MAV_SEVERITY_NOTICE, text)
+        self._param_changes_seen = len(a.param_changes)
         wanted = ROVER_MODES[self.config.autopilot.mode]
         obeying = a.custom_mode is None or a.custom_mode == wanted
         if obeying != self._obeying:

@@ -1,4 +1,4 @@
-"""The vessel behind MAVProxy as a router, beside an operator's ground station on the same autopilot link.
+"""Others on the vessel's autopilot: an operator behind the same router, and a ground station that sets a parameter.
 
 On many boats the companion computer runs MAVProxy (or mavlink-router) on the autopilot's port and hands the
 link to both the autonomy and the operator (`mavproxy.py --master=/dev/ttyAMA0 --out=udp:...`). The router passes
@@ -9,6 +9,11 @@ any, and an operator's accepted ARM_DISARM could end its own refused start-up as
 (tests/test_autopilot_session.py). Here ArduPilot's Rover SITL is the autopilot and MAVProxy the router and the
 operator's console: the operator changes mode three times while the vessel drives, and the vessel, which
 arms and sets its streams on its own acks, reaches its goal and counts the operator's acks as someone else's.
+
+ArduPilot also sends a parameter's new value to every active link when anyone sets it: a ground station that sets
+RC3_TRIM while the vessel drives is heard, and the vessel learns its autopilot's profile again, so its next
+overrides are made with the new neutral (bob_autonomy/onboard/autopilot.py `_take_param`; before, the profile
+was read once at the start).
 
 Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
 """
@@ -21,6 +26,7 @@ import time
 
 import pytest
 from mavproxy_session import MAVPROXY, MavproxySession
+from pymavlink import mavutil
 from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, free_udp_port, local_xy, vessel_config
 
 from bob_autonomy.onboard.vessel import Vessel
@@ -71,3 +77,36 @@ def test_the_vessel_behind_mavproxy_takes_only_the_acks_ardupilot_addresses_to_i
     assert session.intervals_accepted  # its own SET_MESSAGE_INTERVAL answers were taken
     mode = 176  # MAV_CMD_DO_SET_MODE: the vessel's own (at its start-up) only
     assert sum(1 for _t, command, _r in session.acks if command == mode) <= 2
+
+
+def test_a_parameter_a_ground_station_sets_on_real_ardupilot_is_adopted_by_the_driving_vessel(tmp_path) -> None:
+    """ArduPilot sends a parameter's new value to every active link (GCS_Param.cpp GCS::send_parameter_value):
+    a ground station (pymavlink, through the vessel's routing) sets RC3_TRIM, the throttle channel's neutral,
+    while the vessel drives; the vessel hears ArduPilot's PARAM_VALUE, makes its next overrides with it and
+    still reaches its goal."""
+    with RoverSitl(BINARY, "omni", tmp_path) as sitl:
+        sitl.wait_initialised()
+        vessel = Vessel(vessel_config(sitl, goal=GOAL, gcs="udpin:127.0.0.1:0"))
+        runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 120.0}, daemon=True)
+        runner.start()
+        station = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{vessel.gcs_link.local_address[1]}", source_system=255, source_component=190
+        )
+        try:
+            deadline = time.monotonic() + 90.0
+            while not (sitl.seen.modes and sitl.seen.modes[-1][2]):
+                assert time.monotonic() < deadline, "the vessel never armed ArduPilot"
+                station.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                time.sleep(0.5)
+            station.mav.param_set_send(1, 1, b"RC3_TRIM", 1550.0, mavutil.mavlink.MAV_PARAM_TYPE_INT16)
+            deadline = time.monotonic() + 90.0
+            while math.dist(local_xy(*sitl.seen.positions[-1][1:3]), GOAL) > 5.0 or not vessel.autopilot.param_changes:
+                assert time.monotonic() < deadline, f"at {sitl.seen.positions[-1]}, {vessel.autopilot.param_changes}"
+                time.sleep(0.5)
+        finally:
+            station.close()
+            vessel.stop()
+            runner.join(10.0)
+    print(f"\nchanges heard {vessel.autopilot.param_changes}; ArduPilot's RC3_TRIM {sitl.seen.params.get('RC3_TRIM')}")
+    assert vessel.autopilot.param_changes == [("RC3_TRIM", 1500.0, 1550.0)]
+    assert vessel.autopilot.profile.values["RC3_TRIM"] == 1550.0
