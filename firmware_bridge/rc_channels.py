@@ -165,6 +165,18 @@ class ResolutionCarry:
         self._owed[channel] = min(0.5, max(-0.5, target - units))
         return units / full_scale
 
+    def owed(self, channel: object) -> float:
+        """What earlier overrides of `channel` still owe, in units (0 when nothing)."""
+        return self._owed.get(channel, 0.0)
+
+    def set_owed(self, channel: object, owed: float | None) -> None:
+        """Set what `channel` owes (None: nothing, as after a stop): for a batch that carries many links at once
+        (`firmware_bridge.override_batch.carried_units`)."""
+        if owed is None:
+            self._owed.pop(channel, None)
+        else:
+            self._owed[channel] = owed
+
 
 @dataclass(frozen=True)
 class RcMap:

@@ -15,9 +15,21 @@ import numpy as np
 
 from bob_autonomy.core.arrays import finite_pair
 from firmware_bridge.batch_decoder import Columns, decode_batch
-from firmware_bridge.commands import Encoder, command_long_arm, rc_override_for_thrust, rc_override_for_wheels, set_mode
+from firmware_bridge.commands import (
+    CHANNEL_LATERAL,
+    CHANNEL_STEERING,
+    CHANNEL_THROTTLE,
+    DEFAULT_RC_RANGE,
+    Encoder,
+    command_long_arm,
+    rc_override,
+    rc_override_for_thrust,
+    rc_override_for_wheels,
+    set_mode,
+)
 from firmware_bridge.decoder import Battery, CommandAck, Heartbeat, HeartbeatWatch, Reading, TelemetryDecoder
-from firmware_bridge.rc_channels import ResolutionCarry
+from firmware_bridge.override_batch import carried_units, pwm_table
+from firmware_bridge.rc_channels import STEERING_FULL_SCALE, THROTTLE_FULL_SCALE, ResolutionCarry
 
 BUOY, EBOT = "buoy", "ebot"
 AUTOPILOT_COMPONENT = 1  # MAV_COMP_ID_AUTOPILOT1: the only component whose telemetry moves the estimate
@@ -133,3 +145,39 @@ def receive_all(links: Sequence[VehicleLink], chunks: Sequence[bytes]) -> tuple[
         return [link.receive(chunk) if chunk else [] for link, chunk in zip(links, chunks, strict=True)], None
     per_link, columns = batch
     return [link._take(readings) for link, readings in zip(links, per_link, strict=True)], columns
+
+
+_NEUTRAL_STEERING = DEFAULT_RC_RANGE.pwm_for(0.0, STEERING_FULL_SCALE)
+
+
+def command_frames(links: Sequence[VehicleLink], actuators: np.ndarray) -> list[bytes]:
+    """[links[k].command(actuators[k]) for every k], the same bytes, with the error diffusion and the PWMs
+    computed for all links at once (`firmware_bridge.override_batch`); the links must be of one kind. Each frame
+    is still packed by its link's encoder (its own sequence number)."""
+    if not links:
+        return []
+    scale = np.array([link.max_actuator for link in links])
+    kinds = {link.kind for link in links}
+    if len(kinds) != 1 or not (np.all(np.isfinite(scale)) and np.all(scale > 0)):
+        return [link.command(a) for link, a in zip(links, actuators, strict=True)]
+    a = np.nan_to_num(np.asarray(actuators, dtype=float).reshape(len(links), 2))  # as finite_pair does
+    first, second = a[:, 0] / scale, a[:, 1] / scale
+    carries = [link.carry for link in links]
+    table = pwm_table(DEFAULT_RC_RANGE, THROTTLE_FULL_SCALE)
+    if kinds == {BUOY}:  # rc_override_for_thrust: throttle x / max, lateral -y / max, steering neutral
+        throttle = carried_units(carries, CHANNEL_THROTTLE, first)
+        lateral = carried_units(carries, CHANNEL_LATERAL, -second)
+        lateral_pwm = table[lateral.astype(np.intp) + THROTTLE_FULL_SCALE].tolist()
+        steering_pwm = [_NEUTRAL_STEERING] * len(links)
+    else:  # rc_override_for_wheels: throttle the mean, steering half the difference
+        throttle = carried_units(carries, CHANNEL_THROTTLE, (first + second) / 2.0)
+        lateral_pwm = None
+        steering_pwm = [DEFAULT_RC_RANGE.pwm_for(d, STEERING_FULL_SCALE) for d in ((first - second) / 2.0).tolist()]
+    throttle_pwm = table[throttle.astype(np.intp) + THROTTLE_FULL_SCALE].tolist()
+    frames = []
+    for k, link in enumerate(links):
+        channels = {CHANNEL_THROTTLE: throttle_pwm[k], CHANNEL_STEERING: steering_pwm[k]}
+        if lateral_pwm is not None:
+            channels[CHANNEL_LATERAL] = lateral_pwm[k]
+        frames.append(rc_override(channels, link.target_system, 1, encoder=link.encoder))
+    return frames

@@ -29,6 +29,7 @@ fleet over UDP.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -207,19 +208,39 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
                 self.counters.errors += 1
         return bytes(replies)
 
+    def receive_override(self, source_system: int, fields: Sequence[int], t_s: float) -> None:
+        """What `receive` does with bytes that were one RC_CHANNELS_OVERRIDE, its frame already checked and its
+        fields read in declaration order (target system, target component, channels 1-18): for a fleet that
+        reads all its vehicles' overrides at once (`firmware_bridge.override_batch`). Never raises."""
+        try:
+            self._tick(t_s)
+            if self._accepts(source_system) and self._targets_me(int(fields[0]), int(fields[1])):
+                self._override(source_system, [int(v) for v in fields[2:20]], t_s)
+        except Exception:  # one bad message must never stop the vehicle (#17)
+            self.counters.errors += 1
+
     def _for_me(self, msg, system_field: str = "target_system", component_field: str | None = "target_component"):
         system = int(getattr(msg, system_field))
         component = 0 if component_field is None else int(getattr(msg, component_field))
+        return self._targets_me(system, component)
+
+    def _targets_me(self, system: int, component: int) -> bool:
         if system not in (0, self.system_id) or component not in (0, m.MAV_COMP_ID_AUTOPILOT1):
             self.counters.other_target += 1
+            return False
+        return True
+
+    def _accepts(self, src: int) -> bool:
+        """MAV_OPTIONS bit 0: MAVLink only from MAV_GCS_SYSID (GCS_Common.cpp accept_packet); refusals counted."""
+        if self.params.get_int("MAV_OPTIONS") & 1 and src not in (self.gcs_system_id, self.system_id):
+            self.counters.refused += 1
             return False
         return True
 
     def _handle(self, msg, t_s: float) -> bytes:
         name = msg.get_type()
         src = msg.get_srcSystem()
-        if self.params.get_int("MAV_OPTIONS") & 1 and src not in (self.gcs_system_id, self.system_id):
-            self.counters.refused += 1  # MAV_OPTIONS bit 0: MAVLink only from MAV_GCS_SYSID (accept_packet)
+        if not self._accepts(src):
             return b""
         sender = (src, msg.get_srcComponent())
         if name == "HEARTBEAT":
@@ -228,7 +249,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
             return b""
         if name == "RC_CHANNELS_OVERRIDE":
             if self._for_me(msg):
-                self._override(msg, t_s)
+                self._override(src, [int(getattr(msg, field, 0)) for field in OVERRIDE_FIELDS], t_s)
             return b""
         if name == "MANUAL_CONTROL":
             if int(msg.target) == self.system_id:

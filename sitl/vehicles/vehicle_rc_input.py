@@ -19,7 +19,6 @@ from sitl.vehicles.vehicle_defs import (
     BUOY,
     DRIVING_MODES,
     MOTORBOAT,
-    OVERRIDE_FIELDS,
 )
 
 # The angle of each role's channel (Rover/radio.cpp set_control_channels: steering SERVO_MAX, throttle and lateral
@@ -32,11 +31,11 @@ _VALID_OVERRIDE = frozenset(range(800, 2201)) | {0, 65534, 65535}
 class RcInputHandling:
     """RC input handling, mixed into SimulatedVehicle (which holds the state it uses)."""
 
-    def _override(self, msg, t_s: float) -> None:
-        if msg.get_srcSystem() != self.gcs_system_id:
+    def _override(self, source_system: int, raw: list[int], t_s: float) -> None:
+        """An RC_CHANNELS_OVERRIDE addressed to us from `source_system`, its 18 channel values `raw`."""
+        if source_system != self.gcs_system_id:
             self.counters.refused += 1  # GCS_Common.cpp handle_rc_channels_override: only from our GCS
             return
-        raw = [int(getattr(msg, name, 0)) for name in OVERRIDE_FIELDS]
         if not _VALID_OVERRIDE.issuperset(raw):
             self.counters.rejected += 1  # stricter than ArduPilot, which clamps any value into RCx_MIN..MAX
             return

@@ -18,8 +18,9 @@ import numpy as np
 
 from bob_autonomy.onboard.autopilot import AutopilotSession
 from bob_autonomy.onboard.senses import EbotSenses
-from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink, receive_all
+from bob_autonomy.onboard.vehicle_link import BUOY, VehicleLink, command_frames, receive_all
 from firmware_bridge.commands import rc_override
+from firmware_bridge.override_batch import read_overrides
 from firmware_bridge.rc_channels import RcMap, ResolutionCarry
 from firmware_bridge.readings import SensorReadings
 from sitl.vehicles.mavlink_vehicle import MOTORBOAT, SimulatedVehicle, encode_readings, encode_senses, prepend_streams
@@ -109,16 +110,25 @@ class MavlinkTransport:
                 link.receive(replies)
 
     def down(self, commands: FloatArray, t_s: float) -> FloatArray:
-        """Encode each vessel's command, let its vehicle decode it; returns what the vehicles apply (n, 2)."""
+        """Encode each vessel's command, let its vehicle decode it; returns what the vehicles apply (n, 2). The
+        overrides are encoded and read for all vessels at once (`command_frames`, `read_overrides`: the same
+        bytes and the same handling as one at a time)."""
+        if self.kind == MOTORBOAT:
+            frames = [
+                motorboat_override(commands[k, 0], commands[k, 1], link.target_system, link.encoder, link.carry)
+                for k, link in enumerate(self.links)
+            ]
+        else:
+            frames = command_frames(self.links, commands)
+        read = read_overrides([vehicle.reader for vehicle in self.vehicles], frames)
         applied = np.zeros((len(self.vehicles), 2))
-        for k, (link, vehicle) in enumerate(zip(self.links, self.vehicles, strict=True)):
-            if self.kind == MOTORBOAT:
-                data = motorboat_override(commands[k, 0], commands[k, 1], link.target_system, link.encoder, link.carry)
+        for k, (vehicle, data, override) in enumerate(zip(self.vehicles, frames, read, strict=True)):
+            if override is not None:
+                vehicle.receive_override(override[0], override[2], t_s)
             else:
-                data = link.command(commands[k])
-            replies = vehicle.receive(data, t_s)
-            if replies:
-                link.receive(replies)
+                replies = vehicle.receive(data, t_s)
+                if replies:
+                    self.links[k].receive(replies)
             applied[k] = vehicle.actuator(t_s)
         return applied
 
