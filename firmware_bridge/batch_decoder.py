@@ -94,7 +94,7 @@ class Columns:
 _Frame = tuple[int, int, int, int, int, int]
 
 
-def _frames(chunk: bytes, decoder: int, out: list[_Frame]) -> bool:
+def checked_frames(chunk: bytes, decoder: int, out: list[_Frame]) -> bool:
     """Append the frames of one chunk; False when it is anything but whole, unsigned, known, checked MAVLink 2
     frames back to back (then `feed`'s own framing must judge it)."""
     pos, n = 0, len(chunk)
@@ -133,7 +133,7 @@ def decode_batch(
     (nothing fed, nothing counted) when some chunk or decoder is off the fast path (module docstring)."""
     frames: list[_Frame] = []
     for k, (decoder, chunk) in enumerate(zip(decoders, chunks, strict=True)):
-        if chunk and not (_fast_path(decoder) and _frames(chunk, k, frames)):
+        if chunk and not (_fast_path(decoder) and checked_frames(chunk, k, frames)):
             return None
     for decoder, chunk in zip(decoders, chunks, strict=True):
         if chunk:  # `feed` is not called for nothing

@@ -16,8 +16,9 @@ from functools import cache
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from firmware_bridge.batch_decoder import checked_frames
 from firmware_bridge.decoder import TelemetryDecoder
-from firmware_bridge.frames import V2_HEADER_LEN, V2_MARKER, checksum, layout
+from firmware_bridge.frames import V2_HEADER_LEN, layout
 from firmware_bridge.rc_channels import THROTTLE_FULL_SCALE, RcChannelRange, ResolutionCarry
 
 OVERRIDE_ID = mavlink.MAVLINK_MSG_ID_RC_CHANNELS_OVERRIDE
@@ -57,29 +58,25 @@ def read_overrides(decoders: Sequence[TelemetryDecoder], chunks: Sequence[bytes]
     message's fields in declaration order), counted in that decoder as `feed_messages` counts it. Any other
     chunk: None, its decoder untouched (feed it as usual)."""
     found: list[tuple | None] = []
-    spec = _OVERRIDE
     for decoder, chunk in zip(decoders, chunks, strict=True):
-        n = len(chunk)
+        frames: list = []
         if (
-            n < V2_HEADER_LEN + _CRC_LEN
-            or chunk[0] != V2_MARKER
-            or chunk[2]
-            or chunk[3]
-            or V2_HEADER_LEN + chunk[1] + _CRC_LEN != n
-            or chunk[7] | (chunk[8] << 8) | (chunk[9] << 16) != OVERRIDE_ID
-            or decoder._buf
+            decoder._buf
             or decoder.message_hook is not None
             or decoder._mav.signing.secret_key is not None
-            or checksum(spec._crc_extra_byte, checksum(chunk[1 : n - _CRC_LEN])) != chunk[n - 2] | (chunk[n - 1] << 8)
+            or not checked_frames(chunk, 0, frames)
+            or len(frames) != 1
+            or frames[0][3] != OVERRIDE_ID
         ):
             found.append(None)
             continue
+        n = len(chunk)
         c = decoder.counters
         c.bytes_fed += n
         c.received += 1
         c.frame_bytes += n
         c.decoded += 1
-        c.by_type[spec.name] = c.by_type.get(spec.name, 0) + 1
+        c.by_type[_OVERRIDE.name] = c.by_type.get(_OVERRIDE.name, 0) + 1
         c.pending_bytes = 0
-        found.append((chunk[5], chunk[6], spec.fields(chunk[V2_HEADER_LEN : n - _CRC_LEN])))
+        found.append((chunk[5], chunk[6], _OVERRIDE.fields(chunk[V2_HEADER_LEN : n - _CRC_LEN])))
     return found
