@@ -70,6 +70,22 @@ def test_command_frames_are_each_links_own_bytes(kind: str, seed: int) -> None:
     assert [link.carry._owed for link in together] == [link.carry._owed for link in alone]
 
 
+def test_command_frames_are_pymavlinks_own_bytes() -> None:
+    """Each frame parsed by pymavlink and packed again by it (same sequence number and source) is the same
+    bytes, and carries the PWMs the autopilot reads as the command (ArduPilot's default calibration)."""
+    links = [VehicleLink(k + 1, "buoy", 40.0, clock=lambda: 0.0) for k in range(5)]
+    actuators = np.array([[40.0, 0.0], [-20.0, 10.0], [0.0, 0.0], [4.0, -40.0], [math.nan, 100.0]])
+    for frame, link in zip(command_frames(links, actuators), links, strict=True):
+        parser = mavlink.MAVLink(None)
+        (msg,) = parser.parse_buffer(frame)
+        packer = mavlink.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
+        packer.seq = msg.get_seq()
+        assert bytes(msg.pack(packer)) == frame
+        assert (msg.target_system, msg.target_component) == (link.target_system, 1)
+    first = mavlink.MAVLink(None).parse_buffer(command_frames(links[:1], np.array([[40.0, -40.0]]))[0])[0]
+    assert (first.chan3_raw, first.chan4_raw, first.chan1_raw, first.chan5_raw) == (1900, 1900, 1500, 65535)
+
+
 def test_command_frames_of_mixed_kinds_take_each_links_own_path() -> None:
     links = [VehicleLink(1, "buoy", 40.0, clock=lambda: 0.0), VehicleLink(2, "ebot", 0.3, clock=lambda: 0.0)]
     twins = [VehicleLink(1, "buoy", 40.0, clock=lambda: 0.0), VehicleLink(2, "ebot", 0.3, clock=lambda: 0.0)]
