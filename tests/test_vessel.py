@@ -6,6 +6,7 @@ socket, moving a point-mass buoy; the Vessel is the code `bob-autonomy run` exec
 
 from __future__ import annotations
 
+import math
 import socket
 import subprocess
 import sys
@@ -254,6 +255,54 @@ def test_a_parameter_a_ground_station_sets_while_driving_is_adopted_and_said(sta
         "autopilot parameter RC3_TRIM of vehicle 1 changed from 1500 to 1550 (by a ground station?): our RC "
         "overrides follow it now; the controller keeps the model it was built with until the autonomy restarts"
     ]
+
+
+@pytest.mark.parametrize("kind", ["buoy", "motorboat"])
+def test_a_throttle_limit_a_ground_station_sets_while_driving_is_planned_with(kind: str, caplog) -> None:
+    """A ground station lowers MOT_THR_MAX to 50 while the vessel drives at full throttle; ArduPilot clips the
+    throttle to it from then on and sends the new value to every link. The vessel's controller plans with half
+    throttle from the next step (its estimator kept), so the overrides it sends ask for no more, and it says so."""
+    boat = StandInVehicle(kind=kind)
+    boat.start()
+    try:
+        ahead = [60.0 * math.cos(boat.heading), 60.0 * math.sin(boat.heading)]  # the stand-in never turns
+        fast = BehaviorChoice(behavior="bob-rule", params={"goal": ahead, "H": 1, "p0": 5.0, "max_speed": 3.0})
+        vessel = Vessel(replace(_config(boat.port, kind=kind), behavior=fast), clock=ScaledWallClock(SCALE))
+        gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+        param_set = bytes(gcs.param_set_encode(1, 1, b"MOT_THR_MAX", 50.0, mavlink.MAV_PARAM_TYPE_INT8).pack(gcs))
+        estimators, before, set_at = [], [], []  # the estimator driving when the limit is set, overrides sent till then
+
+        def set_limit() -> None:
+            deadline = time.monotonic() + 30.0
+            while vessel.stats.commands < 30 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            estimators.append(vessel.pipeline.estimator)
+            before.extend(channels for _t, channels in list(vessel.autopilot.sent))
+            set_at.append(vessel.clock.now())
+            boat.from_ground.put(param_set)
+
+        threading.Thread(target=set_limit, daemon=True).start()
+        with caplog.at_level("INFO"):
+            vessel.run(duration_s=12.0)
+    finally:
+        boat.close()
+    assert vessel.autopilot.param_changes == [("MOT_THR_MAX", 100.0, 50.0)]
+    assert vessel.config.max_thrust_fraction == 0.5 and estimators == [vessel.pipeline.estimator]
+    pipeline = vessel.pipeline
+    full = [m.max_thrust_n for m in pipeline.models] if kind == "motorboat" else [pipeline.model.max_thrust_n]
+    np.testing.assert_allclose(pipeline.max_thrust_n, 0.5 * np.array(full))
+    said = [r.getMessage() for r in caplog.records if "MOT_THR_MAX" in r.getMessage()]
+    assert said == [
+        "autopilot parameter MOT_THR_MAX of vehicle 1 changed from 100 to 50 (by a ground station?): the controller "
+        "plans with at most 50 % throttle from now on"
+    ]
+    half = round(0.5 * (vessel.autopilot.profile.rc_map.range_of(3).max_us - 1500)) + 1  # us from trim, 1 of slack
+    if kind == "buoy":  # (the stand-in motorboat's simple controller asks for little throttle: max_throttle it is)
+        assert max(abs(channels[3] - 1500) for channels in before) > half, "it drove at more than half throttle"
+    else:
+        assert pipeline.max_throttle.tolist() == [0.5]
+    after = [abs(channels[3] - 1500) for t, channels in vessel.autopilot.sent if t > set_at[0] + 0.5]
+    assert len(after) > 20 and max(after) <= half
 
 
 def _once_driving(vessel: Vessel, event: threading.Event) -> list[int]:

@@ -123,6 +123,11 @@ class BuoyPipeline:
         self.antenna_unplaced = 0  # fixes from an offset antenna that came with no attitude to place them by
         self.gps_accuracy = AccuracyEnvelope(n)  # the receivers' reported accuracies, held and let decay (EKF3)
 
+    def limit_throttle(self, fraction: float) -> None:
+        """Plan with at most `fraction` of full thrust from now on (the autopilot's MOT_THR_MAX was changed while
+        driving): the limit is an input of every solve, so the estimator and the controllers go on as they are."""
+        self.max_thrust_n[:] = self.model.max_thrust_n * float(fraction)
+
     def _new_estimator(self) -> BuoyEkfBank | AlphaBetaBuoyEstimator:
         if not self.use_ekf:
             return AlphaBetaBuoyEstimator(self.n)
@@ -492,6 +497,11 @@ class MotorboatPipeline(BuoyPipeline):
         self._yaw_rate = np.zeros(n)
         self.sideways_wishes = 0  # wishes for a heading the velocity does not go along (module: `check_wish`)
         self._sideways_told = np.zeros(n, dtype=bool)
+
+    def limit_throttle(self, fraction: float) -> None:
+        """Plan with at most `fraction` of full throttle from now on (MOT_THR_MAX changed while driving), every boat."""
+        self.max_throttle[:] = float(fraction)
+        self.max_thrust_n = np.array([m.max_thrust_n for m in self.models]) * self.max_throttle
 
     def check_wish(self, wish_mps: FloatArray, wish_heading_rad: FloatArray, *, tolerance_rad: float = 0.8) -> int:
         """Count (and say once per boat, on the log) the wishes a motorboat cannot follow: a heading to hold while

@@ -325,6 +325,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._armed_seen: bool | None = None
         self._reboots_seen = 0
         self._param_changes_seen = 0
+        self._thrust_fraction_asked = c.max_thrust_fraction  # --max-thrust-fraction: MOT_THR_MAX may only lower it
         self._restart_due: float | None = None  # wall clock (time.monotonic) of the next start-up after a reboot
         self._gps_lost = False
         self._pose_wait_said = False  # said that the vessel holds still for want of a position or a heading
@@ -413,7 +414,7 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._place_fixes(profile.gps_lag_s)
         speed = profile.top_speed_mps
         on_ground = profile.known and profile.frame_class != 2  # FRAME_CLASS 2: a boat
-        capped = c.kind in (BUOY, MOTORBOAT) and profile.throttle_ceiling < c.max_thrust_fraction
+        capped = c.kind in (BUOY, MOTORBOAT) and profile.throttle_ceiling < self._thrust_fraction_asked
         if capped:
             # MOT_THR_MAX clips the throttle: plan with no more (a buoy's lateral is not clipped; kept within it too).
             self.config = c = replace(c, max_thrust_fraction=profile.throttle_ceiling)

@@ -7,6 +7,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -14,12 +15,14 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.core.arrays import finite_pair
 from bob_autonomy.onboard.autopilot import MOTORBOAT
+from bob_autonomy.onboard.pipeline import BuoyPipeline
 from bob_autonomy.onboard.vehicle_link import BUOY
 from firmware_bridge.commands import ROVER_MODES
 
 if TYPE_CHECKING:
     from bob_autonomy.ground.gcs import GcsComponent
     from bob_autonomy.onboard.autopilot import AutopilotSession
+    from bob_autonomy.onboard.pipeline import EbotPipeline
     from bob_autonomy.onboard.vessel import VesselConfig, VesselStats
 
 logger = logging.getLogger("bob_autonomy.onboard.vessel")
@@ -44,6 +47,8 @@ class AutopilotDriving:
     _armed_seen: bool | None
     _reboots_seen: int
     _param_changes_seen: int
+    _thrust_fraction_asked: float
+    pipeline: BuoyPipeline | EbotPipeline
     _restart_due: float | None
     stats: VesselStats
     _send: Callable[[bytes], None]  # VesselLinks
@@ -113,17 +118,30 @@ class AutopilotDriving:
             self._say(mavlink.MAV_SEVERITY_NOTICE, text)
         self._armed_seen = armed
 
+    def _follow_throttle_ceiling(self) -> str:
+        """Plan with the autopilot's MOT_THR_MAX as it now is, a boat's controller and estimator kept
+        (`BuoyPipeline.limit_throttle`): at most it, and at most --max-thrust-fraction. Returns what is said."""
+        fraction = min(self._thrust_fraction_asked, self.autopilot.profile.throttle_ceiling)
+        self.config = replace(self.config, max_thrust_fraction=fraction)
+        if isinstance(self.pipeline, BuoyPipeline):  # (a motorboat's is one too; an eBot's is never limited here)
+            self.pipeline.limit_throttle(fraction)
+        return f"the controller plans with at most {100 * fraction:.0f} % throttle from now on"
+
     def _watch_autopilot(self, now: float) -> None:
         """Say (log + STATUSTEXT) when the autopilot stops obeying: another mode than ours (a failsafe, a ground
         station), our overrides not taken, or telemetry too slow for the estimator."""
         self._watch_restart_and_arming()
         a = self.autopilot
         for name, before, after in a.param_changes[self._param_changes_seen :]:
-            text = (
-                f"autopilot parameter {name} of vehicle {self.config.system_id} changed from {before:g} to {after:g} "
-                "(by a ground station?): our RC overrides follow it now; the controller keeps the model it was "
-                "built with until the autonomy restarts"
-            )
+            system = self.config.system_id
+            changed = f"autopilot parameter {name} of vehicle {system} changed from {before:g} to {after:g}"
+            if name == "MOT_THR_MAX" and self.config.kind in (BUOY, MOTORBOAT):
+                text = f"{changed} (by a ground station?): {self._follow_throttle_ceiling()}"
+            else:
+                text = (
+                    f"{changed} (by a ground station?): our RC overrides follow it now; the controller keeps the model "
+                    "it was built with until the autonomy restarts"
+                )
             self._say(mavlink.MAV_SEVERITY_NOTICE, text)
         self._param_changes_seen = len(a.param_changes)
         wanted = ROVER_MODES[self.config.autopilot.mode]
