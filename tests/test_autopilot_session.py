@@ -149,11 +149,16 @@ def test_override_goes_to_the_mapped_channels_from_the_gcs_id() -> None:
 def test_a_parameter_a_ground_station_changes_while_driving_is_followed_by_the_next_override() -> None:
     """ArduPilot sends a parameter's new value to every link when anyone sets it (GCS::send_parameter_value): the
     session learns its profile again, so the next override is made with the new calibration and GCS id, and
-    the change is listed for the vessel to say. A repeat of a value, or a parameter never read, changes nothing.
+    the change is listed for the vessel to say. A repeat of a value, or a parameter never read, changes nothing;
+    nor do the statistics ArduPilot itself sets and sends every 30 s (STAT_RUNTIME, heard before the profile was
+    learned: found on ArduPilot's SITL, where the vessel said "STAT_RUNTIME changed (by a ground station?)").
     Before, the profile was learned once: overrides kept the old trim (the boat drove at neutral stick)."""
-    s = _session(MAV_GCS_SYSID=250, RC3_MIN=1100, RC3_TRIM=1500, RC3_MAX=1900, FRAME_CLASS=2, FRAME_TYPE=1)
+    s = _session(
+        MAV_GCS_SYSID=250, RC3_MIN=1100, RC3_TRIM=1500, RC3_MAX=1900, FRAME_CLASS=2, FRAME_TYPE=1, STAT_RUNTIME=30
+    )
     autopilot = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
-    for name, value in (("RC3_MIN", 1100.0), ("RC3_TRIM", 1600.0), ("MAV_GCS_SYSID", 251.0), ("NOT_READ", 2.0)):
+    changes = (("RC3_MIN", 1100.0), ("RC3_TRIM", 1600.0), ("STAT_RUNTIME", 61.0), ("MAV_GCS_SYSID", 251.0))
+    for name, value in (*changes, ("NOT_READ", 2.0)):
         for decoded in _parse(autopilot.param_value_encode(name.encode(), value, 9, 900, 0).pack(autopilot)):
             s.handle(decoded)
     assert s.param_changes == [("RC3_TRIM", 1500.0, 1600.0), ("MAV_GCS_SYSID", 250.0, 251.0)]

@@ -84,6 +84,7 @@ CORE_PARAMS = (
     *(f"INS_POS1_{axis}" for axis in "XYZ"),
     *(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
 )
+_CORE_PARAM_SET = frozenset(CORE_PARAMS)
 # Names of CORE_PARAMS that only older firmware has (the newer name is read too): ArduPilot ignores a request for
 # a name it does not know, so these go unanswered by a current one.
 LEGACY_PARAMS = frozenset({"SYSID_MYGCS", "GPS_DELAY_MS", "GPS_POS1_X", "GPS_POS1_Y", "GPS_POS1_Z"})
@@ -506,9 +507,15 @@ class AutopilotSession:
         the profile is learned again (RC map and calibration, steering expo, GCS id act at the next override)."""
         before = self.params.get(name)
         self.params[name] = value
-        if before is not None and value != before and name in self.profile.values:
+        if before is not None and value != before and name in self.profile.values and self._profile_reads(name):
             self.param_changes.append((name, before, value))
             self.learn()
+
+    def _profile_reads(self, name: str) -> bool:
+        """Whether the profile is learned from parameter `name` (CORE_PARAMS, the mapped RC channels' calibration).
+        ArduPilot also sends the values it sets itself to every link, STAT_RUNTIME and STAT_FLTTIME every 30 s
+        (AP_Stats): those are not a ground station's change."""
+        return name in _CORE_PARAM_SET or name in self.rc_param_names()
 
     def _take_ack(self, msg, now: float) -> None:
         if not self._addressed_to_us(msg):

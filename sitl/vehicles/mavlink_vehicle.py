@@ -173,14 +173,16 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         """AP_MotorsUGV::have_skid_steering: throttle left and right assigned, or an omni frame."""
         return self._frame()[1]
 
-    def _frame(self) -> tuple[bool, bool]:
-        """(omni, skid steering) from FRAME_TYPE and SERVO1..32_FUNCTION, read again only when a parameter changed
-        (these are asked several times per vehicle and step)."""
+    def _frame(self) -> tuple[bool, bool, int, list[int]]:
+        """(omni, skid steering, FRAME_TYPE, SERVO1..8_FUNCTION) from the parameters, read again only when a
+        parameter changed (these are asked several times per vehicle and step)."""
         if self._frame_version != self.params.version:
             p = self.params
-            omni = p.get_int("FRAME_TYPE") != 0  # AP_MotorsUGV::is_omni (a known frame type has motors)
-            functions = {p.get_int(f"SERVO{i}_FUNCTION") for i in range(1, SERVO_OUTPUTS + 1)}
-            self._frame_cache, self._frame_version = (omni, {73, 74} <= functions or omni), p.version
+            frame_type = p.get_int("FRAME_TYPE")
+            omni = frame_type != 0  # AP_MotorsUGV::is_omni (a known frame type has motors)
+            functions = [p.get_int(f"SERVO{i}_FUNCTION") for i in range(1, SERVO_OUTPUTS + 1)]
+            skid = {73, 74} <= set(functions) or omni
+            self._frame_cache, self._frame_version = (omni, skid, frame_type, functions[:8]), p.version
         return self._frame_cache
 
     def has_fix(self) -> bool:
@@ -415,10 +417,10 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         return list(self._servo_cache[1])
 
     def _servo_pwms(self, out: PilotOutput) -> list[int]:
-        functions = [self.params.get_int(f"SERVO{i}_FUNCTION") for i in range(1, 9)]
+        _, _, frame_type, functions = self._frame()
         values = {26: self._steering_output(out), 70: out.throttle}
         values[73], values[74] = skid_outputs(out)
-        for k, v in enumerate(omni_motor_outputs(self.params.get_int("FRAME_TYPE"), out)):
+        for k, v in enumerate(omni_motor_outputs(frame_type, out)):
             values[33 + k] = v
         return [servo_pwm(values[f]) if f in values else 0 for f in functions]
 

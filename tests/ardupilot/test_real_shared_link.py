@@ -13,7 +13,7 @@ arms and sets its streams on its own acks, reaches its goal and counts the opera
 ArduPilot also sends a parameter's new value to every active link when anyone sets it: a ground station that sets
 RC3_TRIM while the vessel drives is heard, and the vessel learns its autopilot's profile again, so its next
 overrides are made with the new neutral (bob_autonomy/onboard/autopilot.py `_take_param`; before, the profile
-was read once at the start).
+was read once at the start). MOT_THR_MAX lowered so is planned within from the next step.
 
 Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
 """
@@ -23,12 +23,14 @@ from __future__ import annotations
 import math
 import threading
 import time
+from dataclasses import replace
 
 import pytest
 from mavproxy_session import MAVPROXY, MavproxySession
 from pymavlink import mavutil
 from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, free_udp_port, local_xy, vessel_config
 
+from bob_autonomy.core.behavior_config import BehaviorChoice
 from bob_autonomy.onboard.vessel import Vessel
 
 pytestmark = [
@@ -110,3 +112,45 @@ def test_a_parameter_a_ground_station_sets_on_real_ardupilot_is_adopted_by_the_d
     print(f"\nchanges heard {vessel.autopilot.param_changes}; ArduPilot's RC3_TRIM {sitl.seen.params.get('RC3_TRIM')}")
     assert vessel.autopilot.param_changes == [("RC3_TRIM", 1500.0, 1550.0)]
     assert vessel.autopilot.profile.values["RC3_TRIM"] == 1550.0
+
+
+def test_a_throttle_ceiling_set_on_real_ardupilot_while_driving_is_planned_within(tmp_path) -> None:
+    """An operator lowers MOT_THR_MAX to 30 while the vessel drives an omni rover at well over 30 % throttle;
+    ArduPilot clips its throttle there from then on and sends the new value to every link. The vessel's controller
+    plans within 30 % from its next step: the throttle input ArduPilot reports (RC_CHANNELS chan3) stays within
+    30 % of its throw, and the vessel still reaches its goal."""
+    far = (50.0, 0.0)
+    with RoverSitl(BINARY, "omni", tmp_path) as sitl:
+        sitl.wait_initialised()
+        config = vessel_config(sitl, goal=far, gcs="udpin:127.0.0.1:0")
+        fast = BehaviorChoice(behavior="bob-rule", params={**config.behavior.params, "max_speed": 4.0})
+        vessel = Vessel(replace(config, behavior=fast))
+        runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 150.0}, daemon=True)
+        runner.start()
+        station = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{vessel.gcs_link.local_address[1]}", source_system=255, source_component=190
+        )
+        try:
+            deadline = time.monotonic() + 90.0
+            while not (sitl.seen.modes and sitl.seen.modes[-1][2]) or vessel.stats.commands < 100:
+                assert time.monotonic() < deadline, "the vessel never armed ArduPilot and drove"
+                station.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                time.sleep(0.5)
+            set_at = time.monotonic()
+            station.mav.param_set_send(1, 1, b"MOT_THR_MAX", 30.0, mavutil.mavlink.MAV_PARAM_TYPE_INT8)
+            deadline = time.monotonic() + 120.0
+            while math.dist(local_xy(*sitl.seen.positions[-1][1:3]), far) > 5.0 or not vessel.autopilot.param_changes:
+                assert time.monotonic() < deadline, f"at {sitl.seen.positions[-1]}, {vessel.autopilot.param_changes}"
+                time.sleep(0.5)
+        finally:
+            station.close()
+            vessel.stop()
+            runner.join(10.0)
+    throttle = vessel.autopilot.profile.rc_map.range_of(3)
+    ceiling = 0.3 * (throttle.max_us - throttle.trim_us - throttle.dead_zone_us) + throttle.dead_zone_us + 1
+    before = [abs(chans[2] - throttle.trim_us) for t, chans in sitl.seen.rc if t < set_at]
+    after = [abs(chans[2] - throttle.trim_us) for t, chans in sitl.seen.rc if t > set_at + 2.0]
+    print(f"\nthrottle input from trim before {max(before)} us, after at most {max(after)} us (ceiling {ceiling:.0f})")
+    assert vessel.autopilot.param_changes == [("MOT_THR_MAX", 100.0, 30.0)]
+    assert vessel.config.max_thrust_fraction == 0.3
+    assert max(before) > ceiling and len(after) > 20 and max(after) <= ceiling
