@@ -414,10 +414,13 @@ class Vessel(VesselLinks, AutopilotDriving):
         self._place_fixes(profile.gps_lag_s)
         speed = profile.top_speed_mps
         on_ground = profile.known and profile.frame_class != 2  # FRAME_CLASS 2: a boat
-        capped = c.kind in (BUOY, MOTORBOAT) and profile.throttle_ceiling < self._thrust_fraction_asked
+        boat = c.kind in (BUOY, MOTORBOAT)
+        capped = boat and profile.throttle_ceiling < self._thrust_fraction_asked
+        if boat:  # (at a start-up after a reboot too: the ceiling may have changed meanwhile)
+            fraction = min(self._thrust_fraction_asked, profile.throttle_ceiling)
+            self.config = c = replace(c, max_thrust_fraction=fraction)
         if capped:
             # MOT_THR_MAX clips the throttle: plan with no more (a buoy's lateral is not clipped; kept within it too).
-            self.config = c = replace(c, max_thrust_fraction=profile.throttle_ceiling)
             logger.info(
                 "throttle limited to %.0f %% by MOT_THR_MAX: the controller plans with that",
                 100 * c.max_thrust_fraction,
@@ -455,6 +458,8 @@ class Vessel(VesselLinks, AutopilotDriving):
             if rebuild:
                 self.pipeline = self.body.pipeline = ebot_pipeline(self.config, self.max_actuator, slew)
                 logger.info("wheel control: throttle slew %.0f %%/s", 100 * slew)
+        if boat and isinstance(self.pipeline, BuoyPipeline):  # a pipeline kept from before a reboot too
+            self.pipeline.limit_throttle(c.max_thrust_fraction)
         if c.kind == BUOY and profile.lateral_capable:
             self._hold_heading = True
         self._place_antenna(profile.gps_antenna_m)
