@@ -81,34 +81,42 @@ def test_the_vessel_behind_mavproxy_takes_only_the_acks_ardupilot_addresses_to_i
     assert sum(1 for _t, command, _r in session.acks if command == mode) <= 2
 
 
+def _set_while_driving(sitl: RoverSitl, vessel: Vessel, goal, name: bytes, value: float, param_type: int) -> float:
+    """Run `vessel` (its ground-station link on a UDP port); once it has armed ArduPilot and sent 100 overrides, a
+    ground station (pymavlink, through the vessel's routing) sets parameter `name`; then wait until the vessel is
+    within 5 m of `goal` and has heard a change. Returns when the parameter was set (time.monotonic)."""
+    runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 150.0}, daemon=True)
+    runner.start()
+    station = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{vessel.gcs_link.local_address[1]}", source_system=255, source_component=190
+    )
+    try:
+        deadline = time.monotonic() + 90.0
+        while not (sitl.seen.modes and sitl.seen.modes[-1][2]) or vessel.stats.commands < 100:
+            assert time.monotonic() < deadline, "the vessel never armed ArduPilot and drove"
+            station.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            time.sleep(0.5)
+        set_at = time.monotonic()
+        station.mav.param_set_send(1, 1, name, value, param_type)
+        deadline = time.monotonic() + 120.0
+        while math.dist(local_xy(*sitl.seen.positions[-1][1:3]), goal) > 5.0 or not vessel.autopilot.param_changes:
+            assert time.monotonic() < deadline, f"at {sitl.seen.positions[-1]}, {vessel.autopilot.param_changes}"
+            time.sleep(0.5)
+    finally:
+        station.close()
+        vessel.stop()
+        runner.join(10.0)
+    return set_at
+
+
 def test_a_parameter_a_ground_station_sets_on_real_ardupilot_is_adopted_by_the_driving_vessel(tmp_path) -> None:
     """ArduPilot sends a parameter's new value to every active link (GCS_Param.cpp GCS::send_parameter_value):
-    a ground station (pymavlink, through the vessel's routing) sets RC3_TRIM, the throttle channel's neutral,
-    while the vessel drives; the vessel hears ArduPilot's PARAM_VALUE, makes its next overrides with it and
-    still reaches its goal."""
+    a ground station sets RC3_TRIM, the throttle channel's neutral, while the vessel drives; the vessel hears
+    ArduPilot's PARAM_VALUE, makes its next overrides with it and still reaches its goal."""
     with RoverSitl(BINARY, "omni", tmp_path) as sitl:
         sitl.wait_initialised()
         vessel = Vessel(vessel_config(sitl, goal=GOAL, gcs="udpin:127.0.0.1:0"))
-        runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 120.0}, daemon=True)
-        runner.start()
-        station = mavutil.mavlink_connection(
-            f"udpout:127.0.0.1:{vessel.gcs_link.local_address[1]}", source_system=255, source_component=190
-        )
-        try:
-            deadline = time.monotonic() + 90.0
-            while not (sitl.seen.modes and sitl.seen.modes[-1][2]):
-                assert time.monotonic() < deadline, "the vessel never armed ArduPilot"
-                station.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                time.sleep(0.5)
-            station.mav.param_set_send(1, 1, b"RC3_TRIM", 1550.0, mavutil.mavlink.MAV_PARAM_TYPE_INT16)
-            deadline = time.monotonic() + 90.0
-            while math.dist(local_xy(*sitl.seen.positions[-1][1:3]), GOAL) > 5.0 or not vessel.autopilot.param_changes:
-                assert time.monotonic() < deadline, f"at {sitl.seen.positions[-1]}, {vessel.autopilot.param_changes}"
-                time.sleep(0.5)
-        finally:
-            station.close()
-            vessel.stop()
-            runner.join(10.0)
+        _set_while_driving(sitl, vessel, GOAL, b"RC3_TRIM", 1550.0, mavutil.mavlink.MAV_PARAM_TYPE_INT16)
     print(f"\nchanges heard {vessel.autopilot.param_changes}; ArduPilot's RC3_TRIM {sitl.seen.params.get('RC3_TRIM')}")
     assert vessel.autopilot.param_changes == [("RC3_TRIM", 1500.0, 1550.0)]
     assert vessel.autopilot.profile.values["RC3_TRIM"] == 1550.0
@@ -125,27 +133,7 @@ def test_a_throttle_ceiling_set_on_real_ardupilot_while_driving_is_planned_withi
         config = vessel_config(sitl, goal=far, gcs="udpin:127.0.0.1:0")
         fast = BehaviorChoice(behavior="bob-rule", params={**config.behavior.params, "max_speed": 4.0})
         vessel = Vessel(replace(config, behavior=fast))
-        runner = threading.Thread(target=vessel.run, kwargs={"duration_s": 150.0}, daemon=True)
-        runner.start()
-        station = mavutil.mavlink_connection(
-            f"udpout:127.0.0.1:{vessel.gcs_link.local_address[1]}", source_system=255, source_component=190
-        )
-        try:
-            deadline = time.monotonic() + 90.0
-            while not (sitl.seen.modes and sitl.seen.modes[-1][2]) or vessel.stats.commands < 100:
-                assert time.monotonic() < deadline, "the vessel never armed ArduPilot and drove"
-                station.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                time.sleep(0.5)
-            set_at = time.monotonic()
-            station.mav.param_set_send(1, 1, b"MOT_THR_MAX", 30.0, mavutil.mavlink.MAV_PARAM_TYPE_INT8)
-            deadline = time.monotonic() + 120.0
-            while math.dist(local_xy(*sitl.seen.positions[-1][1:3]), far) > 5.0 or not vessel.autopilot.param_changes:
-                assert time.monotonic() < deadline, f"at {sitl.seen.positions[-1]}, {vessel.autopilot.param_changes}"
-                time.sleep(0.5)
-        finally:
-            station.close()
-            vessel.stop()
-            runner.join(10.0)
+        set_at = _set_while_driving(sitl, vessel, far, b"MOT_THR_MAX", 30.0, mavutil.mavlink.MAV_PARAM_TYPE_INT8)
     throttle = vessel.autopilot.profile.rc_map.range_of(3)
     ceiling = 0.3 * (throttle.max_us - throttle.trim_us - throttle.dead_zone_us) + throttle.dead_zone_us + 1
     before = [abs(chans[2] - throttle.trim_us) for t, chans in sitl.seen.rc if t < set_at]
