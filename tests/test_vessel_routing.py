@@ -82,6 +82,17 @@ def test_a_command_for_the_autopilot_is_answered_by_the_autopilot(routed_vessel)
     assert version.capabilities & mavutil.mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 
 
+def _where_it_went(vessel: Vessel, results: list[int]) -> str:
+    """What the vessel did with the ground station's commands, for a failed check: whether a command came in,
+    was passed on, and answered (one CI run under load once saw no answer at all)."""
+    counters = vessel.gcs.counters
+    return (
+        f"answers {results}; the vessel took {counters.commands} commands in {counters.accepted} accepted frames "
+        f"({counters.malformed} malformed, {counters.ignored_other_target} for others), refused "
+        f"{counters.autopilot_refused}, sent {counters.sent} frames; stats {vessel.stats}"
+    )
+
+
 def _answers_from_the_autonomy(gcs, command: int, timeout_s: float = 10.0) -> tuple[list[int], list[str]]:
     """The results of the autonomy's (component 191) COMMAND_ACKs for `command` up to its final one (not
     IN_PROGRESS), and the autonomy's STATUSTEXTs meanwhile."""
@@ -116,12 +127,12 @@ def test_an_arm_command_to_the_autonomy_gets_the_autopilots_own_answer(routed_ve
 
     gcs.mav.command_long_send(1, 191, arm_disarm, 0, 0, 0, 0, 0, 0, 0, 0)  # disarm
     results, _ = _answers_from_the_autonomy(gcs, arm_disarm)
-    assert results == [in_progress, accepted] and not vehicle.vehicle.armed
+    assert results == [in_progress, accepted] and not vehicle.vehicle.armed, _where_it_went(vessel, results)
 
     vehicle.vehicle.params.set("RC3_MIN", 1600)  # ArduPilot's RC checks refuse to arm (above 1300 us)
     gcs.mav.command_long_send(1, 191, arm_disarm, 0, 1, 0, 0, 0, 0, 0, 0)
     results, texts = _answers_from_the_autonomy(gcs, arm_disarm)
-    assert results == [in_progress, failed] and not vehicle.vehicle.armed
+    assert results == [in_progress, failed] and not vehicle.vehicle.armed, _where_it_went(vessel, results)
     said = "".join(texts)  # STATUSTEXT carries 50 characters a message: a longer text comes in chunks
     assert "vehicle 1 refused arm" in said and "Arm: Throttle radio min too high" in said, texts
 
@@ -129,7 +140,7 @@ def test_an_arm_command_to_the_autonomy_gets_the_autopilots_own_answer(routed_ve
     started = time.monotonic()
     gcs.mav.command_long_send(1, 191, arm_disarm, 0, 1, 0, 0, 0, 0, 0, 0)
     results, texts = _answers_from_the_autonomy(gcs, arm_disarm)
-    assert results == [in_progress, failed]
+    assert results == [in_progress, failed], _where_it_went(vessel, results)
     assert 0.8 < time.monotonic() - started < 3.0  # 5 s of the vessel's clock, which runs at SCALE (5x)
     assert "vehicle 1 did not answer arm within 5 s" in "".join(texts), texts
     assert vessel.gcs.counters.autopilot_refused == 2
