@@ -107,7 +107,7 @@ def test_the_row_wise_polygon_and_rate_limit_are_the_controllers_own() -> None:
     batch = BuoyMpcBatch(fleet())
     mpc = batch.controllers[0]
     for _ in range(200):
-        limit = rng.choice([45.0, 30.0, 12.5, 1e-3, 0.0], N)
+        limit = rng.choice([45.0, 30.0, 12.5, 1e-3, 0.0, 1e-170, 1e-90, 1e90, 1e170], N)
         angle = rng.uniform(-math.pi, math.pi, N)
         radius = limit * mpc.inradius_ratio * (1.0 + rng.choice([0.0, 1e-16, -1e-16, 1e-9, -1e-9, 0.3, -0.3], N))
         thrust = np.column_stack((radius * np.cos(angle), radius * np.sin(angle)))

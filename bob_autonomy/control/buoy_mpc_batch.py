@@ -186,11 +186,13 @@ class BuoyMpcBatch:
         """Each row (x, y) N of thrust_n scaled into the polygon of its limit N, as `BuoyMpc._into_polygon` does.
 
         A point well inside the inscribed circle (x^2 + y^2 below the squared inradius by a factor 1 - 1e-9, far
-        more than the round-off of either side) has polygon_peak <= hypot(x, y) < inradius and is kept as it is;
-        the others go through the controller's own function."""
+        more than the round-off of either side; an inradius between 1e-100 and 1e100 N, so that no square
+        overflows or loses to underflow what matters) has polygon_peak <= hypot(x, y) < inradius and is kept as
+        it is; the others go through the controller's own function."""
         bound = limit * self.controllers[0].inradius_ratio
         x, y = thrust_n[:, 0], thrust_n[:, 1]
-        inside = x * x + y * y <= bound * bound * (1.0 - 1e-9)
+        with np.errstate(over="ignore", under="ignore"):  # such rows are left to the controller's function
+            inside = (x * x + y * y <= bound * bound * (1.0 - 1e-9)) & (bound >= 1e-100) & (bound <= 1e100)
         out = thrust_n.copy()
         for k in np.flatnonzero(~inside).tolist():
             out[k] = self.controllers[k]._into_polygon(float(x[k]), float(y[k]), float(limit[k]))
