@@ -81,3 +81,62 @@ def test_only_controllers_that_can_share_a_call_are_batched() -> None:
     assert not BuoyMpcBatch.fits([BuoyMpc(solver="osqp", time_budget_s=math.inf) for _ in range(2)])
     with pytest.raises(ValueError, match="one tuning"):
         BuoyMpcBatch(fleet(1))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_batch_arrays_are_the_commands_of_each_vessels_own_solve(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    batch, alone = BuoyMpcBatch(fleet()), fleet()
+    for _ in range(30):
+        desired, velocity, water, heading, limit = random_step(rng)
+        body, world = batch.thrust(desired, velocity, water, heading, limit)
+        expected = [mpc.solve(desired[k], velocity[k], water[k], heading[k], limit[k]) for k, mpc in enumerate(alone)]
+        np.testing.assert_array_equal(body, np.array([r.thrust_body_n for r in expected]))
+        np.testing.assert_array_equal(world, np.array([r.thrust_world_n for r in expected]))
+    for mine, theirs in zip(batch.controllers, alone, strict=True):
+        assert (mine.solves, mine.fallbacks, mine._last_thrust) == (
+            theirs.solves,
+            theirs.fallbacks,
+            theirs._last_thrust,
+        )
+
+
+def test_the_row_wise_polygon_and_rate_limit_are_the_controllers_own() -> None:
+    """Points all around the polygon, many within round-off of its inscribed circle (the fast path's edge)."""
+    rng = np.random.default_rng(7)
+    batch = BuoyMpcBatch(fleet())
+    mpc = batch.controllers[0]
+    for _ in range(200):
+        limit = rng.choice([45.0, 30.0, 12.5, 1e-3, 0.0, 1e-170, 1e-90, 1e90, 1e170], N)
+        angle = rng.uniform(-math.pi, math.pi, N)
+        radius = limit * mpc.inradius_ratio * (1.0 + rng.choice([0.0, 1e-16, -1e-16, 1e-9, -1e-9, 0.3, -0.3], N))
+        thrust = np.column_stack((radius * np.cos(angle), radius * np.sin(angle)))
+        previous = batch._into_polygon(rng.uniform(-50.0, 50.0, (N, 2)), limit)
+        expected = [mpc._into_polygon(x, y, lim) for (x, y), lim in zip(thrust.tolist(), limit.tolist(), strict=True)]
+        np.testing.assert_array_equal(batch._into_polygon(thrust, limit), np.array(expected))
+        limited = [
+            mpc._within_limits((x, y), (px, py), lim)
+            for (x, y), (px, py), lim in zip(thrust.tolist(), previous.tolist(), limit.tolist(), strict=True)
+        ]
+        np.testing.assert_array_equal(batch._within_limits(thrust, previous, limit), np.array(limited))
+
+
+def test_a_non_finite_plan_gives_that_vessel_the_fallback_of_its_own_solve(monkeypatch) -> None:
+    rng = np.random.default_rng(5)
+    batch, alone = BuoyMpcBatch(fleet()), fleet()
+    solve_mapped, solve_alone = batch._qp, alone[4]._solve_qp
+
+    def mapped_with_a_nan() -> None:
+        solve_mapped()
+        batch._x[4, 3] = np.nan
+
+    monkeypatch.setattr(batch, "_qp", mapped_with_a_nan)
+    monkeypatch.setattr(alone[4], "_solve_qp", lambda *args: solve_alone(*args) * np.nan)
+    for _ in range(3):
+        desired, velocity, water, heading, limit = random_step(rng)
+        limit[4] = 45.0
+        results = batch.solve(desired, velocity, water, heading, limit)
+        expected = [mpc.solve(desired[k], velocity[k], water[k], heading[k], limit[k]) for k, mpc in enumerate(alone)]
+        assert_same(results, expected)
+        assert results[4].fallback
+    assert batch.controllers[4].fallbacks == 3

@@ -254,12 +254,12 @@ class BuoyPipeline:
         if self.use_mpc and not idle:
             water = self.drift()
             if self.mpc_batch is not None:
-                results = self.mpc_batch.solve(wish_mps, velocity, water, heading, self.max_thrust_n)
-            else:
-                results = [
-                    mpc.solve(wish_mps[k], velocity[k], water[k], heading[k], self.max_thrust_n[k])
-                    for k, mpc in enumerate(self.mpcs)
-                ]
+                body, self.thrust_world_n = self.mpc_batch.thrust(wish_mps, velocity, water, heading, self.max_thrust_n)
+                return body
+            results = [
+                mpc.solve(wish_mps[k], velocity[k], water[k], heading[k], self.max_thrust_n[k])
+                for k, mpc in enumerate(self.mpcs)
+            ]
             self.thrust_world_n = np.array([r.thrust_world_n for r in results]).reshape(-1, 2)
             return np.array([r.thrust_body_n for r in results]).reshape(-1, 2)
         body = self.simple.thrust(wish_mps, velocity, heading, self.max_thrust_n)
