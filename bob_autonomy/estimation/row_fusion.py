@@ -70,8 +70,10 @@ class _RowFusion:
         r_cov: FloatArray,
         angle: bool,
         reset_cols: Sequence[int] | None,
+        selects: slice | None = None,
     ) -> IntArray:
-        """Fuse z (m, k) into rows idx (Joseph form), each undone if its innovation fails the gate.
+        """Fuse z (m, k) into rows idx (Joseph form), each undone if its innovation fails the gate; selects: the
+        states h_jac reads directly, if it does (see kalman_update_rows).
 
         Codes: fused, gated, failed, or reset (after gate_reset_count consecutive gated readings of this kind:
         states reset_cols re-initialised from z; with reset_cols None, _reopen(rows) instead)."""
@@ -79,7 +81,7 @@ class _RowFusion:
         if angle:
             y = wrap_angle(y)
         x0, p0 = self.x[idx], self.P[idx]
-        x1, p1, d2, inverted = kalman_update_rows(x0, p0, y, h_jac, r_cov)
+        x1, p1, d2, inverted = kalman_update_rows(x0, p0, y, h_jac, r_cov, selects)
         passed = inverted & (d2 <= CHI2_999[z.shape[1]])
         gated = inverted & ~passed
         healthy = passed & _healthy_rows(x1, p1)

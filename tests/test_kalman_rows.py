@@ -1,0 +1,42 @@
+"""kalman_update_rows' path for sensors that read states directly gives the general path's bytes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bob_autonomy.estimation.kalman_rows import kalman_update_rows
+from bob_autonomy.estimation.row_fusion import _measurement
+
+
+def _covariances(rng: np.random.Generator, m: int, n: int) -> np.ndarray:
+    """Random covariances (m, n, n), some with the exact zeros of states set apart (as a reading sets them)."""
+    a = rng.normal(size=(m, n, n))
+    p_cov = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(n)
+    p_cov[::3, 4, :] = p_cov[::3, :, 4] = 0.0
+    p_cov[::3, 4, 4] = 0.5
+    p_cov[1::4, 0:2, 2:] = p_cov[1::4, 2:, 0:2] = 0.0
+    return p_cov
+
+
+@pytest.mark.parametrize("cols", [(5,), (4,), (0, 1), (0, 1, 2, 3)])
+@pytest.mark.parametrize("per_row_noise", [False, True])
+def test_reading_states_directly_gives_the_general_updates_bytes(cols: tuple[int, ...], per_row_noise: bool) -> None:
+    rng = np.random.default_rng(len(cols) + 10 * per_row_noise)
+    m, n, k = 45, 10, len(cols)
+    for _ in range(20):
+        x = rng.normal(size=(m, n))
+        x[::5, 2] = 0.0
+        p_cov = _covariances(rng, m, n)
+        y = rng.normal(size=(m, k)) * rng.choice([0.01, 1.0, 100.0])
+        y[::7] = 0.0
+        _, h_jac, r_cov = _measurement(n, cols, tuple(rng.uniform(0.01, 2.0, size=k)))
+        if per_row_noise:
+            r_cov = np.repeat(r_cov[None], m, axis=0) * rng.uniform(0.5, 4.0, size=(m, 1, 1))
+        p_cov[-1, cols[0], cols[0]] = -r_cov[..., 0, 0].max() - 1.0  # a row whose S is not positive definite
+        plain = kalman_update_rows(x, p_cov, y, h_jac, r_cov)
+        direct = kalman_update_rows(x, p_cov, y, h_jac, r_cov, slice(cols[0], cols[-1] + 1))
+        assert not plain[3][-1]
+        for a, b in zip(plain, direct, strict=True):
+            assert a.shape == b.shape and a.dtype == b.dtype
+            assert a.tobytes() == b.tobytes()
