@@ -7,7 +7,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from bob_autonomy.estimation.buoy_params import _COMPASS, _FIELDS, _GPS, _GYRO, _NX, _PREDICT, BuoyEkfParams
 from bob_autonomy.estimation.buoy_process import _BuoyProcess
-from bob_autonomy.estimation.kalman_rows import wrap_angle
+from bob_autonomy.estimation.kalman_rows import any_row, wrap_angle
 from bob_autonomy.estimation.row_replay import (
     _IGNORED,
     _INIT,
@@ -19,6 +19,11 @@ from bob_autonomy.estimation.row_replay import (
     _vectors,
 )
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
+
+
+def _finite_or_zero(values: FloatArray) -> FloatArray:
+    """The values with 0.0 where they are not finite (np.nan_to_num's result, in two numpy calls)."""
+    return np.where(np.isfinite(values), values, 0.0)
 
 
 class BuoyEkfBank(_RowReplay, _BuoyProcess):
@@ -143,7 +148,7 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         filter's own noise, which then stands alone (the same arithmetic as without a report)."""
         p = self.params
         position, speed = (
-            np.zeros(k) if values is None else np.nan_to_num(_scalars(values, k), nan=0.0, posinf=0.0, neginf=0.0)
+            np.zeros(k) if values is None else _finite_or_zero(_scalars(values, k))
             for values in (accuracy, speed_accuracy)
         )
         worse = (position > p.gps_sigma_m).any() or (vel is not None and (speed > p.gps_velocity_sigma_mps).any())
@@ -227,8 +232,9 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
 
     def _handle(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
         """Readings of one kind for rows idx at times t, in time order: predict to t, then fuse by kind."""
-        clock = self.t[idx]
-        self.t[idx] = np.where(np.isnan(clock), t, clock)
+        unset = np.isnan(self.t[idx])  # no reading yet: the clock starts at this one's time
+        if any_row(unset):
+            self.t[idx[unset]] = t[unset]
         if kind == _PREDICT:
             return self._handle_predict(idx, t, *data)
         self._propagate(idx, t)

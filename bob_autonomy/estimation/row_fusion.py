@@ -83,12 +83,12 @@ class _RowFusion:
         x0, p0 = self.x[idx], self.P[idx]
         x1, p1, d2, inverted = kalman_update_rows(x0, p0, y, h_jac, r_cov, selects)
         passed = inverted & (d2 <= CHI2_999[z.shape[1]])
-        gated = inverted & ~passed
         healthy = passed & _healthy_rows(x1, p1)
         if every_row(healthy):  # the usual case: every reading fused, no gate run left
             self.gate_run[idx, kind] = 0
             self.x[idx], self.P[idx] = x1, p1
             return np.full(idx.size, _FUSED)
+        gated = inverted & ~passed
         codes = np.where(healthy, _FUSED, np.where(gated, _GATED, _FAILED))
         run = np.where(passed, 0, self.gate_run[idx, kind] + gated)
         reset = gated & (run >= self.params.gate_reset_count)
