@@ -1,4 +1,5 @@
-"""kalman_update_rows' path for sensors that read states directly gives the general path's bytes."""
+"""The buoy bank's row arithmetic: kalman_update_rows' path for sensors that read states directly gives the general
+path's bytes; the float state a snapshot copies in one array."""
 
 from __future__ import annotations
 
@@ -40,3 +41,17 @@ def test_reading_states_directly_gives_the_general_updates_bytes(cols: tuple[int
         for a, b in zip(plain, direct, strict=True):
             assert a.shape == b.shape and a.dtype == b.dtype
             assert a.tobytes() == b.tobytes()
+
+
+def test_the_buoy_banks_float_arrays_are_views_of_the_one_a_snapshot_copies() -> None:
+    from bob_autonomy.estimation.buoy_ekf_bank import BuoyEkfBank
+
+    bank = BuoyEkfBank(3, position_m=[[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], heading_rad=[0.1, 0.2, 0.3])
+    for name in ("x", "P", "t", "accel", "t_accel", "thrust", "t_thrust", "nozzle", "t_nozzle"):
+        assert np.shares_memory(getattr(bank, name), bank._floats), name
+    assert bank.P.shape == (3, 10, 10) and bank.x[:, 0:2].tolist() == [[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]
+    block = bank._snapshot(np.array([0, 2]))
+    bank.x[:] = 7.0
+    bank.P[2, 4, 4] = 9.0
+    bank._restore(np.array([2]), block, np.array([1]))
+    assert bank.x[2, 0:2].tolist() == [5.0, 6.0] and bank.P[2, 4, 4] != 9.0 and bank.x[0, 0] == 7.0

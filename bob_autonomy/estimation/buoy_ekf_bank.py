@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bob_autonomy.estimation.buoy_params import _COMPASS, _FIELDS, _GPS, _GYRO, _NX, _PREDICT, BuoyEkfParams
+from bob_autonomy.estimation.buoy_params import (
+    _COMPASS,
+    _FIELDS,
+    _FLOAT_FIELDS,
+    _GPS,
+    _GYRO,
+    _PREDICT,
+    BuoyEkfParams,
+)
 from bob_autonomy.estimation.buoy_process import _BuoyProcess
 from bob_autonomy.estimation.kalman_rows import any_row, wrap_angle
 from bob_autonomy.estimation.row_replay import (
@@ -24,6 +32,20 @@ from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseE
 def _finite_or_zero(values: FloatArray) -> FloatArray:
     """The values with 0.0 where they are not finite (np.nan_to_num's result, in two numpy calls)."""
     return np.where(np.isfinite(values), values, 0.0)
+
+
+def _float_fields(bank: object, n: int) -> FloatArray:
+    """One (n, width) array holding the float per-agent arrays of _FLOAT_FIELDS side by side; each is set on the
+    bank as a view of its columns, (n, *shape)."""
+    widths = [int(np.prod(shape)) for _, shape in _FLOAT_FIELDS]
+    floats = np.empty((n, sum(widths)))
+    start = 0
+    for (name, shape), width in zip(_FLOAT_FIELDS, widths, strict=True):
+        # (splitting the columns' contiguous axis: reshape gives a view)
+        view = floats[:, start] if not shape else floats[:, start : start + width].reshape((n, *shape))
+        setattr(bank, name, view)
+        start += width
+    return floats
 
 
 class BuoyEkfBank(_RowReplay, _BuoyProcess):
@@ -53,17 +75,18 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         sig = [p.initial_position_sigma_m] * 2 + [p.initial_velocity_sigma_mps] * 2
         sig += [p.initial_heading_sigma_rad, p.initial_yaw_rate_sigma_radps] + [p.initial_drift_sigma_mps] * 2
         sig += [p.initial_accel_bias_sigma_mps2] * 2
-        self.x = np.zeros((n, _NX))
-        self.P = np.tile(np.diag(np.square(sig)), (n, 1, 1))
-        self.t = np.full(n, np.nan)
+        self._floats = _float_fields(self, n)  # x ... t_nozzle below are views of its columns
+        self.x[:] = 0.0
+        self.P[:] = np.diag(np.square(sig))
+        self.t[:] = np.nan
         self.pos_init = np.zeros(n, dtype=bool)
         self.heading_init = np.zeros(n, dtype=bool)
-        self.accel = np.full((n, 2), np.nan)  # the accelerometer reading in use (body frame), and its time
-        self.t_accel = np.full(n, -np.inf)
-        self.thrust = np.full((n, 2), np.nan)  # the thrust command in force (world frame), and its time
-        self.t_thrust = np.full(n, -np.inf)
-        self.nozzle = np.zeros(n)  # believed nozzle angle relative to the hull (rad), and when it was last slewed
-        self.t_nozzle = np.full(n, np.nan)
+        self.accel[:] = np.nan  # the accelerometer reading in use (body frame), and its time
+        self.t_accel[:] = -np.inf
+        self.thrust[:] = np.nan  # the thrust command in force (world frame), and its time
+        self.t_thrust[:] = -np.inf
+        self.nozzle[:] = 0.0  # believed nozzle angle relative to the hull (rad), and when it was last slewed
+        self.t_nozzle[:] = np.nan
         self.gate_run = np.zeros((n, 4), dtype=np.int64)  # consecutive gated readings of each kind
         self._template_cache: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
         self._init_replay(n, _FIELDS)
