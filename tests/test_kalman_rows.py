@@ -55,3 +55,17 @@ def test_the_buoy_banks_float_arrays_are_views_of_the_one_a_snapshot_copies() ->
     bank.P[2, 4, 4] = 9.0
     bank._restore(np.array([2]), block, np.array([1]))
     assert bank.x[2, 0:2].tolist() == [5.0, 6.0] and bank.P[2, 4, 4] != 9.0 and bank.x[0, 0] == 7.0
+
+
+def test_a_copied_or_pickled_buoy_bank_keeps_its_arrays_views_of_its_own_floats() -> None:
+    import copy
+    import pickle
+
+    from bob_autonomy.estimation.buoy_ekf_bank import BuoyEkfBank
+
+    bank = BuoyEkfBank(2, position_m=[[1.0, 2.0], [3.0, 4.0]], heading_rad=0.5)
+    for twin in (copy.deepcopy(bank), pickle.loads(pickle.dumps(bank))):
+        assert np.shares_memory(twin.P, twin._floats) and not np.shares_memory(twin.P, bank._floats)
+        assert twin.x.tobytes() == bank.x.tobytes() and twin.P.tobytes() == bank.P.tobytes()
+    shallow = copy.copy(bank)
+    assert np.shares_memory(shallow.x, bank._floats)

@@ -34,18 +34,19 @@ def _finite_or_zero(values: FloatArray) -> FloatArray:
     return np.where(np.isfinite(values), values, 0.0)
 
 
-def _float_fields(bank: object, n: int) -> FloatArray:
-    """One (n, width) array holding the float per-agent arrays of _FLOAT_FIELDS side by side; each is set on the
-    bank as a view of its columns, (n, *shape)."""
-    widths = [int(np.prod(shape)) for _, shape in _FLOAT_FIELDS]
-    floats = np.empty((n, sum(widths)))
-    start = 0
-    for (name, shape), width in zip(_FLOAT_FIELDS, widths, strict=True):
+def _float_fields(bank: object, floats: FloatArray) -> None:
+    """Set the float per-agent arrays of _FLOAT_FIELDS on the bank as views, (n, *shape), of the columns of
+    `floats` (n, width), which holds them side by side."""
+    n, start = floats.shape[0], 0
+    for name, shape in _FLOAT_FIELDS:
+        width = int(np.prod(shape))
         # (splitting the columns' contiguous axis: reshape gives a view)
         view = floats[:, start] if not shape else floats[:, start : start + width].reshape((n, *shape))
         setattr(bank, name, view)
         start += width
-    return floats
+
+
+_FLOATS_WIDTH = sum(int(np.prod(shape)) for _, shape in _FLOAT_FIELDS)
 
 
 class BuoyEkfBank(_RowReplay, _BuoyProcess):
@@ -75,7 +76,8 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         sig = [p.initial_position_sigma_m] * 2 + [p.initial_velocity_sigma_mps] * 2
         sig += [p.initial_heading_sigma_rad, p.initial_yaw_rate_sigma_radps] + [p.initial_drift_sigma_mps] * 2
         sig += [p.initial_accel_bias_sigma_mps2] * 2
-        self._floats = _float_fields(self, n)  # x ... t_nozzle below are views of its columns
+        self._floats = np.empty((n, _FLOATS_WIDTH))
+        _float_fields(self, self._floats)  # x ... t_nozzle below are views of its columns
         self.x[:] = 0.0
         self.P[:] = np.diag(np.square(sig))
         self.t[:] = np.nan
@@ -99,6 +101,16 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
             head = np.broadcast_to(np.asarray(heading_rad, dtype=float), (n,))
             self._set_states(everyone, [4], wrap_angle(head)[:, None], np.array([[p.compass_sigma_rad**2]]))
             self.heading_init[:] = True
+
+    def __getstate__(self) -> dict:
+        """The bank's attributes without the views of `_floats` (copied or pickled, they would come apart from
+        it); __setstate__ makes them again."""
+        views = {name for name, _ in _FLOAT_FIELDS}
+        return {key: value for key, value in self.__dict__.items() if key not in views}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        _float_fields(self, self._floats)
 
     # ------------------------------------------------------------ readings (the batch API)
 
