@@ -5,9 +5,17 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bob_autonomy.estimation.buoy_params import _COMPASS, _FIELDS, _GPS, _GYRO, _NX, _PREDICT, BuoyEkfParams
+from bob_autonomy.estimation.buoy_params import (
+    _COMPASS,
+    _FIELDS,
+    _FLOAT_FIELDS,
+    _GPS,
+    _GYRO,
+    _PREDICT,
+    BuoyEkfParams,
+)
 from bob_autonomy.estimation.buoy_process import _BuoyProcess
-from bob_autonomy.estimation.kalman_rows import wrap_angle
+from bob_autonomy.estimation.kalman_rows import any_row, wrap_angle
 from bob_autonomy.estimation.row_replay import (
     _IGNORED,
     _INIT,
@@ -19,6 +27,26 @@ from bob_autonomy.estimation.row_replay import (
     _vectors,
 )
 from bob_autonomy.estimation.simple_estimator import FloatArray, IntArray, PoseEstimate
+
+
+def _finite_or_zero(values: FloatArray) -> FloatArray:
+    """The values with 0.0 where they are not finite (np.nan_to_num's result, in two numpy calls)."""
+    return np.where(np.isfinite(values), values, 0.0)
+
+
+def _float_fields(bank: object, floats: FloatArray) -> None:
+    """Set the float per-agent arrays of _FLOAT_FIELDS on the bank as views, (n, *shape), of the columns of
+    `floats` (n, width), which holds them side by side."""
+    n, start = floats.shape[0], 0
+    for name, shape in _FLOAT_FIELDS:
+        width = int(np.prod(shape))
+        # (splitting the columns' contiguous axis: reshape gives a view)
+        view = floats[:, start] if not shape else floats[:, start : start + width].reshape((n, *shape))
+        setattr(bank, name, view)
+        start += width
+
+
+_FLOATS_WIDTH = sum(int(np.prod(shape)) for _, shape in _FLOAT_FIELDS)
 
 
 class BuoyEkfBank(_RowReplay, _BuoyProcess):
@@ -48,17 +76,19 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         sig = [p.initial_position_sigma_m] * 2 + [p.initial_velocity_sigma_mps] * 2
         sig += [p.initial_heading_sigma_rad, p.initial_yaw_rate_sigma_radps] + [p.initial_drift_sigma_mps] * 2
         sig += [p.initial_accel_bias_sigma_mps2] * 2
-        self.x = np.zeros((n, _NX))
-        self.P = np.tile(np.diag(np.square(sig)), (n, 1, 1))
-        self.t = np.full(n, np.nan)
+        self._floats = np.empty((n, _FLOATS_WIDTH))
+        _float_fields(self, self._floats)  # x ... t_nozzle below are views of its columns
+        self.x[:] = 0.0
+        self.P[:] = np.diag(np.square(sig))
+        self.t[:] = np.nan
         self.pos_init = np.zeros(n, dtype=bool)
         self.heading_init = np.zeros(n, dtype=bool)
-        self.accel = np.full((n, 2), np.nan)  # the accelerometer reading in use (body frame), and its time
-        self.t_accel = np.full(n, -np.inf)
-        self.thrust = np.full((n, 2), np.nan)  # the thrust command in force (world frame), and its time
-        self.t_thrust = np.full(n, -np.inf)
-        self.nozzle = np.zeros(n)  # believed nozzle angle relative to the hull (rad), and when it was last slewed
-        self.t_nozzle = np.full(n, np.nan)
+        self.accel[:] = np.nan  # the accelerometer reading in use (body frame), and its time
+        self.t_accel[:] = -np.inf
+        self.thrust[:] = np.nan  # the thrust command in force (world frame), and its time
+        self.t_thrust[:] = -np.inf
+        self.nozzle[:] = 0.0  # believed nozzle angle relative to the hull (rad), and when it was last slewed
+        self.t_nozzle[:] = np.nan
         self.gate_run = np.zeros((n, 4), dtype=np.int64)  # consecutive gated readings of each kind
         self._template_cache: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
         self._init_replay(n, _FIELDS)
@@ -71,6 +101,16 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
             head = np.broadcast_to(np.asarray(heading_rad, dtype=float), (n,))
             self._set_states(everyone, [4], wrap_angle(head)[:, None], np.array([[p.compass_sigma_rad**2]]))
             self.heading_init[:] = True
+
+    def __getstate__(self) -> dict:
+        """The bank's attributes without the views of `_floats` (copied or pickled, they would come apart from
+        it); __setstate__ makes them again."""
+        views = {name for name, _ in _FLOAT_FIELDS}
+        return {key: value for key, value in self.__dict__.items() if key not in views}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        _float_fields(self, self._floats)
 
     # ------------------------------------------------------------ readings (the batch API)
 
@@ -143,7 +183,7 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
         filter's own noise, which then stands alone (the same arithmetic as without a report)."""
         p = self.params
         position, speed = (
-            np.zeros(k) if values is None else np.nan_to_num(_scalars(values, k), nan=0.0, posinf=0.0, neginf=0.0)
+            np.zeros(k) if values is None else _finite_or_zero(_scalars(values, k))
             for values in (accuracy, speed_accuracy)
         )
         worse = (position > p.gps_sigma_m).any() or (vel is not None and (speed > p.gps_velocity_sigma_mps).any())
@@ -227,8 +267,9 @@ class BuoyEkfBank(_RowReplay, _BuoyProcess):
 
     def _handle(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
         """Readings of one kind for rows idx at times t, in time order: predict to t, then fuse by kind."""
-        clock = self.t[idx]
-        self.t[idx] = np.where(np.isnan(clock), t, clock)
+        unset = np.isnan(self.t[idx])  # no reading yet: the clock starts at this one's time
+        if any_row(unset):
+            self.t[idx[unset]] = t[unset]
         if kind == _PREDICT:
             return self._handle_predict(idx, t, *data)
         self._propagate(idx, t)

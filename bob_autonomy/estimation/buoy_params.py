@@ -27,11 +27,14 @@ _AS_MODEL_OUTCOME = np.arange(len(OUTCOMES))
 _AS_MODEL_OUTCOME[[_FUSED, _GATED, _RESET]] = _PREDICTED, _MODEL_GATED, _MODEL_RESET
 # Kinds of reading; the first four also index the counters of consecutive gated readings.
 _GPS, _COMPASS, _GYRO, _DRAG, _PREDICT = range(5)
-# Per-agent filter state, in the arrays of a BuoyEkfBank (what a replay snapshot holds).
-_FIELDS = (
-    "x", "P", "t", "pos_init", "heading_init", "accel", "t_accel", "thrust", "t_thrust", "nozzle", "t_nozzle",
-    "gate_run",
+# Per-agent filter state, in the arrays of a BuoyEkfBank (what a replay snapshot holds): the float arrays are views
+# of columns of one array, `_floats`, in this order and of these shapes per agent, so that a snapshot copies one
+# array where it would copy nine (a numpy call each, for every call's rows).
+_FLOAT_FIELDS = (
+    ("x", (_NX,)), ("P", (_NX, _NX)), ("t", ()), ("accel", (2,)), ("t_accel", ()), ("thrust", (2,)),
+    ("t_thrust", ()), ("nozzle", ()), ("t_nozzle", ()),
 )  # fmt: skip
+_FIELDS = ("_floats", "pos_init", "heading_init", "gate_run")
 
 
 @dataclass(frozen=True)

@@ -200,7 +200,8 @@ class _BuoyProcess(_BuoyUpdates):
         m = idx.size
         x, p_cov = self.x[idx], self.P[idx]
         with_accel = ~np.isnan(accel_body[:, 0])
-        with_thrust = ~with_accel & ~np.isnan(thrust[:, 0])
+        every_accel = every_row(with_accel)  # (the usual case: no row on the drag model or constant velocity)
+        with_thrust = None if every_accel else ~with_accel & ~np.isnan(thrust[:, 0])
         a = np.zeros((m, 2))
         da_dx = np.zeros((m, 2, _NX))  # Jacobian of the acceleration over ground with respect to the state
         if any_row(with_accel):  # a = R(heading) (a_body - bias)
@@ -209,21 +210,22 @@ class _BuoyProcess(_BuoyUpdates):
             bx, by = body[:, 0], body[:, 1]
             a_accel = np.empty((m, 2))
             a_accel[:, 0], a_accel[:, 1] = c * bx - s * by, s * bx + c * by
-            if not every_row(with_accel):
+            if not every_accel:
                 a_accel[~with_accel] = 0.0
                 rot[~with_accel] = 0.0
             a += a_accel
             da_dx[:, 0, 4], da_dx[:, 1, 4] = -a_accel[:, 1], a_accel[:, 0]
             da_dx[:, :, 8:10] = -rot
-        if any_row(with_thrust):  # M a = T - f(v - d)
+        if with_thrust is not None and any_row(with_thrust):  # M a = T - f(v - d)
             drag, jac = _drag_rows(x[:, 2:4] - x[:, 6:8], p.model)
             mask = with_thrust / p.model.mass_kg
             a += np.where(with_thrust[:, None], thrust - drag, 0.0) / p.model.mass_kg
             jac *= mask[:, None, None]
             da_dx[:, :, 2:4] = -jac
             da_dx[:, :, 6:8] = jac
-        q = np.where(with_accel, p.accel_psd + p.accel_noise_mps2**2 * accel_span, p.free_psd)
-        q = np.where(with_thrust, p.model_psd, q)
+        q = p.accel_psd + p.accel_noise_mps2**2 * accel_span
+        if with_thrust is not None:
+            q = np.where(with_thrust, p.model_psd, np.where(with_accel, q, p.free_psd))
         f_base, q_pattern, q_fixed = self._templates(h)
         hh = 0.5 * h * h
         f_jac = f_base + np.zeros((m, 1, 1))

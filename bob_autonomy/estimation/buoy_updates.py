@@ -50,7 +50,8 @@ class _BuoyUpdates(_RowFusion):
         if rows.size:
             agents = idx[rows]
             r_rows = r_cov if acc is None else r_cov[rows]
-            codes[rows] = self._fuse(agents, _GPS, z[rows], self.x[agents][:, cols], h_jac, r_rows, False, cols)
+            reads = slice(0, len(cols))  # (the states cols: x, y and, with a velocity, vx, vy)
+            codes[rows] = self._fuse(agents, _GPS, z[rows], self.x[agents][:, cols], h_jac, r_rows, False, cols, reads)
         return codes
 
     def _handle_compass(self, idx: IntArray, heading_rad: FloatArray) -> IntArray:
@@ -65,14 +66,15 @@ class _BuoyUpdates(_RowFusion):
             agents = idx[rows]
             _, h_jac, r_cov = _measurement(_NX, (4,), (p.compass_sigma_rad**2,))
             z = heading[rows][:, None]
-            codes[rows] = self._fuse(agents, _COMPASS, z, self.x[agents, 4:5], h_jac, r_cov, True, [4])
+            codes[rows] = self._fuse(agents, _COMPASS, z, self.x[agents, 4:5], h_jac, r_cov, True, [4], slice(4, 5))
             self.x[agents, 4] = wrap_angle(self.x[agents, 4])
         return codes
 
     def _handle_gyro(self, idx: IntArray, yaw_rate_radps: FloatArray) -> IntArray:
         """Gyro yaw rates, fused into the yaw-rate state."""
         _, h_jac, r_cov = _measurement(_NX, (5,), (self.params.gyro_sigma_radps**2,))
-        return self._fuse(idx, _GYRO, yaw_rate_radps[:, None], self.x[idx, 5:6], h_jac, r_cov, False, [5])
+        z = yaw_rate_radps[:, None]
+        return self._fuse(idx, _GYRO, z, self.x[idx, 5:6], h_jac, r_cov, False, [5], slice(5, 6))
 
     def _initial_heading(self, idx: IntArray, heading: FloatArray) -> None:
         if idx.size:

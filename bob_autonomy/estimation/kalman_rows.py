@@ -43,7 +43,12 @@ def kalman_predict_rows(p_cov: FloatArray, f_jac: FloatArray, q_cov: FloatArray)
 
 
 def kalman_update_rows(
-    x: FloatArray, p_cov: FloatArray, y: FloatArray, h_jac: FloatArray, r_cov: FloatArray
+    x: FloatArray,
+    p_cov: FloatArray,
+    y: FloatArray,
+    h_jac: FloatArray,
+    r_cov: FloatArray,
+    selects: slice | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
     """The update of filterpy's ExtendedKalmanFilter.update (Joseph form) for a stack of m filters.
 
@@ -51,14 +56,62 @@ def kalman_update_rows(
     or (k, k). Returns the updated states and covariances (symmetrised), the squared Mahalanobis distances
     y^T S^-1 y (m,) and which rows had a positive-definite innovation covariance S (the others are left as they
     were).
+
+    selects: the states h_jac reads, when they are consecutive and each row of h_jac is a 1 at one of them (a
+    sensor that measures states directly). P H^T and H P H^T are then P's columns and block: every sum of those
+    products has one term that is not an exact zero, so the values are the same, without the matmuls.
     """
-    pht = p_cov @ _transpose(h_jac)
-    s_inv, ok = _spd_inverse(h_jac @ pht + r_cov)
+    if selects is not None and y.shape[1] == 1:
+        return _update_one_state(x, p_cov, y, selects.start, r_cov)
+    if selects is None:
+        pht = p_cov @ _transpose(h_jac)
+        s_cov = h_jac @ pht + r_cov
+    else:  # (R's zeros off its diagonal make a -0.0 of the block +0.0, as the matmul's sum gives it)
+        pht = p_cov[:, :, selects]
+        s_cov = pht[:, selects, :] + r_cov
+    s_inv, ok = _spd_inverse(s_cov)
     d2 = (y[:, None, :] @ s_inv @ y[:, :, None])[:, 0, 0]
     gain = pht @ s_inv
     x_new = x + (gain @ y[:, :, None])[:, :, 0]
-    i_kh = _identity(x.shape[1]) - gain @ h_jac
+    if selects is None:
+        i_kh = _identity(x.shape[1]) - gain @ h_jac
+    else:
+        i_kh = _identity_stack(x.shape[0], x.shape[1])
+        i_kh[:, :, selects] -= gain
     p_new = i_kh @ p_cov @ _transpose(i_kh) + gain @ r_cov @ _transpose(gain)
+    return _updated(x, p_cov, x_new, p_new, d2, ok)
+
+
+def _update_one_state(
+    x: FloatArray, p_cov: FloatArray, y: FloatArray, col: int, r_cov: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """kalman_update_rows for a reading of state `col` alone (H = e_col^T, k = 1). Every matmul of the general
+    update but the Joseph product (I - K H) P (I - K H)^T then has one term per sum, so it is taken elementwise:
+    the same products, in the same order. A matmul's sum starts at +0.0, which turns a product of -0.0 into
+    +0.0; `+ 0.0` does the same here where a product can be -0.0 and the value is used on."""
+    m, n = x.shape
+    r = r_cov[..., 0, 0]  # () or (m,)
+    pht = p_cov[:, :, col] + 0.0  # (m, n): P H^T
+    s = pht[:, col] + r
+    ok = s > 0.0
+    s_inv = 1.0 / np.where(ok, s, 1.0)  # as _spd_inverse: positive
+    y = y[:, 0]
+    d2 = y * s_inv * y
+    gain = pht * s_inv[:, None]  # (m, n); never -0.0 (pht is not, s_inv > 0)
+    x_new = x + (gain * y[:, None] + 0.0)
+    i_kh = _identity_stack(m, n)
+    i_kh[:, :, col] -= gain
+    gain_r = gain * (r[:, None] if np.ndim(r) else r)
+    # K R K^T: a -0.0 in it is added to the Joseph product's matmul, never -0.0 itself, so it adds as +0.0 would.
+    p_new = i_kh @ p_cov @ _transpose(i_kh) + gain_r[:, :, None] * gain[:, None, :]
+    return _updated(x, p_cov, x_new, p_new, d2, ok)
+
+
+def _updated(
+    x: FloatArray, p_cov: FloatArray, x_new: FloatArray, p_new: FloatArray, d2: FloatArray, ok: NDArray[np.bool_]
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """The end of kalman_update_rows: the covariances symmetrised, and the rows without a positive-definite S
+    left as they were."""
     p_new = 0.5 * (p_new + _transpose(p_new))
     if every_row(ok):
         return x_new, p_new, d2, ok
@@ -94,6 +147,11 @@ def _identity(n: int) -> FloatArray:
     eye = np.eye(n)
     eye.flags.writeable = False
     return eye
+
+
+def _identity_stack(m: int, n: int) -> FloatArray:
+    """m copies of the n x n identity (m, n, n), to be written to."""
+    return np.repeat(_identity(n)[None], m, axis=0)
 
 
 def _healthy_rows(x: FloatArray, p_cov: FloatArray) -> NDArray[np.bool_]:

@@ -70,8 +70,10 @@ class _RowFusion:
         r_cov: FloatArray,
         angle: bool,
         reset_cols: Sequence[int] | None,
+        selects: slice | None = None,
     ) -> IntArray:
-        """Fuse z (m, k) into rows idx (Joseph form), each undone if its innovation fails the gate.
+        """Fuse z (m, k) into rows idx (Joseph form), each undone if its innovation fails the gate; selects: the
+        states h_jac reads directly, if it does (see kalman_update_rows).
 
         Codes: fused, gated, failed, or reset (after gate_reset_count consecutive gated readings of this kind:
         states reset_cols re-initialised from z; with reset_cols None, _reopen(rows) instead)."""
@@ -79,14 +81,14 @@ class _RowFusion:
         if angle:
             y = wrap_angle(y)
         x0, p0 = self.x[idx], self.P[idx]
-        x1, p1, d2, inverted = kalman_update_rows(x0, p0, y, h_jac, r_cov)
+        x1, p1, d2, inverted = kalman_update_rows(x0, p0, y, h_jac, r_cov, selects)
         passed = inverted & (d2 <= CHI2_999[z.shape[1]])
-        gated = inverted & ~passed
         healthy = passed & _healthy_rows(x1, p1)
         if every_row(healthy):  # the usual case: every reading fused, no gate run left
             self.gate_run[idx, kind] = 0
             self.x[idx], self.P[idx] = x1, p1
             return np.full(idx.size, _FUSED)
+        gated = inverted & ~passed
         codes = np.where(healthy, _FUSED, np.where(gated, _GATED, _FAILED))
         run = np.where(passed, 0, self.gate_run[idx, kind] + gated)
         reset = gated & (run >= self.params.gate_reset_count)

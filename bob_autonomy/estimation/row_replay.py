@@ -40,6 +40,12 @@ def _scalars(values: ArrayLike, k: int) -> FloatArray:
     return arr if arr.size == k else np.array(np.broadcast_to(arr, (k,)))
 
 
+def _distinct(idx: IntArray) -> bool:
+    """Whether no agent is named twice in a call's rows idx (k,): at once when they are increasing (a fleet's
+    calls name its agents in order), else by np.unique."""
+    return np.count_nonzero(idx[1:] <= idx[:-1]) == 0 or np.unique(idx).size == idx.size
+
+
 def _take(data: tuple, rows: ArrayLike) -> tuple:
     """The given rows of each array of a call's data (None stays None)."""
     return tuple(None if values is None else values[rows] for values in data)
@@ -54,7 +60,7 @@ class _RowReplay:
     t: FloatArray
     _rejected: NDArray[np.int64]
     _late: NDArray[np.int64]
-    _pruned: NDArray[np.int64]
+    _pruned: list[list[int]]
     _logs: list[list[list]]
     _times: list[list[float]]
 
@@ -63,7 +69,9 @@ class _RowReplay:
         self._fields = fields
         self._rejected = np.zeros(n, dtype=np.int64)
         self._late = np.zeros(n, dtype=np.int64)
-        self._pruned = np.zeros((n, len(OUTCOMES)), dtype=np.int64)  # outcomes of entries gone from the logs
+        # Outcomes of entries gone from the logs, per agent and outcome (Python ints: one is counted per entry
+        # pruned, about one per agent and reading, where a numpy element's increment costs several times more).
+        self._pruned = [[0] * len(OUTCOMES) for _ in range(n)]
         # Replay logs, one per agent: entries [t, call, row in call, snapshot block, row in block, outcome].
         self._logs: list[list[list]] = [[] for _ in range(n)]
         self._times: list[list[float]] = [[] for _ in range(n)]
@@ -76,7 +84,7 @@ class _RowReplay:
     def _submit(self, kind: int, idx: IntArray, t: FloatArray, data: tuple) -> IntArray:
         """Handle a call's readings (rows idx at times t): in order, or by replay; returns the outcome codes."""
         k = idx.size
-        if k > 1 and np.unique(idx).size < k:  # an agent twice in one call: one row at a time, in order
+        if k > 1 and not _distinct(idx):  # an agent twice in one call: one row at a time, in order
             return np.concatenate(
                 [self._submit(kind, idx[i : i + 1], t[i : i + 1], _take(data, [i])) for i in range(k)]
             )
@@ -114,8 +122,9 @@ class _RowReplay:
             times.append(ta)
             if len(times) > 1 and times[1] <= cut:
                 j = bisect.bisect_right(times, cut) - 1
+                counts = pruned[a]
                 for entry in log[:j]:
-                    pruned[a, entry[5]] += 1
+                    counts[entry[5]] += 1
                 del log[:j], times[:j]
         return codes
 
@@ -200,7 +209,7 @@ class _RowReplay:
         if code == _LATE:
             return self._late.copy()
         live = np.array([sum(e[5] == code for e in log) for log in self._logs], dtype=np.int64)
-        return self._pruned[:, code] + live
+        return np.array([counts[code] for counts in self._pruned], dtype=np.int64) + live
 
     @property
     def rejected(self) -> int:
