@@ -108,8 +108,9 @@ class MessageLayout:
     def frame(self, args: Sequence[Any], seq: int, system_id: int, component_id: int) -> bytes:
         """`pack_frame` of this message type: `values`, `payload` and the header in one call (the telemetry hot
         path: a lockstep fleet of 45 vehicles packs about 430 frames per step)."""
-        if len(args) < self._n_fields:
-            args = (*args, *self._tail(len(args)))
+        given = len(args)
+        if given < self._n_fields:
+            args = (*args, *(self._tails.get(given) or self._tail(given)))
         values = self._wire_getter(args) if self._flat else self.values(args)
         payload = self.struct.pack(*values).rstrip(b"\0") or b"\0"
         body = V2_HEADER.pack(V2_MARKER, len(payload), 0, 0, seq, system_id, component_id, *self._id_fields) + payload

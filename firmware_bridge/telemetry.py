@@ -43,7 +43,7 @@ def _cm_s(v_mps: float) -> int:
 def _uint16s(values: Sequence[int], count: int) -> list[int]:
     """`count` values as uint16 fields: the first `count` of `values` as integers clamped to 0..UINT16_MAX, zeros
     after them (the clamping only done when some value needs it: these go out several times a second)."""
-    out = [int(v) for v in values[:count]] if isinstance(values, list) else [int(v) for v in list(values)[:count]]
+    out = list(map(int, values[:count] if isinstance(values, list) else list(values)[:count]))
     if out and (min(out) < 0 or max(out) > UINT16_MAX):
         out = [max(0, min(UINT16_MAX, v)) for v in out]
     return out + [0] * (count - len(out))
@@ -124,8 +124,9 @@ class TelemetryEncoder:
         None: the extensions left out; one None: that one 0, unknown)."""
         extensions = ()
         if h_acc_m is not None or vel_acc_mps is not None:
-            milli = [min(2**32 - 1, max(0, round(v * 1000.0))) if v is not None else 0 for v in (h_acc_m, vel_acc_mps)]
-            extensions = (0, milli[0], 0, milli[1])  # alt_ellipsoid, h_acc, v_acc, vel_acc
+            h_acc = 0 if h_acc_m is None else min(2**32 - 1, max(0, round(h_acc_m * 1000.0)))
+            vel_acc = 0 if vel_acc_mps is None else min(2**32 - 1, max(0, round(vel_acc_mps * 1000.0)))
+            extensions = (0, h_acc, 0, vel_acc)  # alt_ellipsoid, h_acc, v_acc, vel_acc
         vel, cog = UINT16_MAX, UINT16_MAX
         if velocity_mps is not None and all(map(math.isfinite, velocity_mps)):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])

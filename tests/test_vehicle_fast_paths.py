@@ -169,3 +169,166 @@ def test_apply_override_is_the_channel_by_channel_rule(seed: int) -> None:
         _apply_channel_by_channel(plain, raw, 0.1 * k)
         assert (fast.override, fast.override_t, fast.last_valid_s) == (plain.override, plain.override_t,
                                                                        plain.last_valid_s)  # fmt: skip
+
+
+def _plain_failsafes(v: SimulatedVehicle, t_s: float) -> None:
+    """`SimulatedVehicle._failsafes` without its early return: every check handed to FailsafeState.update."""
+    from sitl.vehicles import autopilot_safety as safety
+
+    f = v._failsafe_params()
+    radio = False
+    if f.thr_enable:
+        ch = f.rcmap_throttle
+        pwm = v.rc.radio_in[ch - 1] if 1 <= ch <= 8 else 0
+        radio = pwm < f.thr_value or t_s - v.rc.last_valid_s > safety.RADIO_TIMEOUT_S
+    gcs = False
+    if f.gcs_enable and v._gcs_seen_s is not None:
+        gcs = t_s - v._gcs_seen_s >= f.gcs_timeout_s
+    may = v.mode not in (safety.HOLD, safety.RTL) or bool(f.options & 1)
+    checks = [(safety.FS_RADIO, "Radio", radio)] if f.thr_enable else []
+    if f.gcs_enable and v._gcs_seen_s is not None:
+        checks.append((safety.FS_GCS, "GCS", gcs))
+    for kind, name, on in checks:
+        text = v.failsafe.update(kind, name, on, t_s, f.timeout_s, may)
+        if text is None:
+            continue
+        if not text.startswith("!"):
+            v._text(m.MAV_SEVERITY_INFO, text)
+            continue
+        v._text(m.MAV_SEVERITY_WARNING, text[1:])
+        v.rc.clear_overrides()
+        v.counters.failsafes += 1
+        action = safety.failsafe_mode(v.params.get_int("FS_ACTION"), v.has_fix())
+        if action == -1:
+            if v.armed:
+                v._disarm()
+        elif action is not None:
+            v.set_mode(action) or v.set_mode(safety.HOLD)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_failsafe_checks_with_their_early_return_are_the_plain_checks(seed: int) -> None:
+    """Twins, one with the plain failsafe checks: overrides that come and stop, GCS heartbeats that stop, the
+    failsafe parameters changed, modes set, arming: the same replies, telemetry, modes, failsafes and outputs."""
+    rng = np.random.default_rng(50 + seed)
+    kind = ["buoy", "ebot", "motorboat"][seed % 3]
+    twins = [SimulatedVehicle(1, kind, 10.0, armed=True, rc_receiver=bool(seed % 2)) for _ in range(2)]
+    twins[1]._failsafes = lambda t_s, v=twins[1]: _plain_failsafes(v, t_s)
+    gcs = [Gcs(), Gcs()]
+    t = 0.0
+    for _ in range(800):
+        t += float(rng.choice([0.0, 0.05, 0.1, 0.5, 1.0, 2.5]))
+        event, frames = rng.random(), []
+        if event < 0.3:
+            frames.append(("override", {1: int(rng.integers(900, 2100)), 3: int(rng.integers(900, 2100))}))
+        elif event < 0.4:
+            frames.append(("heartbeat",))
+        elif event < 0.45:
+            name = str(rng.choice(["FS_THR_ENABLE", "FS_GCS_ENABLE", "FS_ACTION", "FS_TIMEOUT", "FS_OPTIONS",
+                                   "FS_THR_VALUE", "FS_GCS_TIMEOUT"]))  # fmt: skip
+            value = {"FS_THR_ENABLE": rng.integers(0, 3), "FS_GCS_ENABLE": rng.integers(0, 3),
+                     "FS_ACTION": rng.integers(0, 7), "FS_TIMEOUT": rng.uniform(0.1, 3.0),
+                     "FS_OPTIONS": rng.integers(0, 2), "FS_THR_VALUE": rng.integers(900, 1200),
+                     "FS_GCS_TIMEOUT": rng.uniform(1.0, 5.0)}[name]  # fmt: skip
+            frames.append(("param", name, float(value)))
+        elif event < 0.5:
+            frames.append(("mode", int(rng.choice([0, 1, 3, 4, 5, 10, 11, 15]))))
+        elif event < 0.53:
+            frames.append(("arm", int(rng.integers(0, 2))))
+        fix = rng.random() < 0.7
+        outs = []
+        for v, station in zip(twins, gcs, strict=True):
+            replies = bytearray()
+            for frame in frames:
+                if frame[0] == "override":
+                    data = station.override(frame[1])
+                elif frame[0] == "heartbeat":
+                    data = station.heartbeat()
+                elif frame[0] == "param":
+                    data = station.pack(station.mav.param_set_encode(1, 1, frame[1].encode(), frame[2], 9))
+                elif frame[0] == "mode":
+                    data = station.long(m.MAV_CMD_DO_SET_MODE, 1, frame[1])
+                else:
+                    data = station.long(m.MAV_CMD_COMPONENT_ARM_DISARM, frame[1])
+                replies += v.receive(data, t)
+            if fix:
+                v.observe("gps", t, 1.3, 103.9, (0.1, 0.2))
+            outs.append((bytes(replies), v.actuator(t).tolist(), v.stream(t)))
+        assert outs[0] == outs[1]
+        a, b = twins
+        assert (a.mode, a.armed, a.failsafe, a.counters, a.rc.radio_in) == (b.mode, b.armed, b.failsafe, b.counters,
+                                                                           b.rc.radio_in)  # fmt: skip
+
+
+def _plain_observe(readings, t_s: float, vehicles: list[SimulatedVehicle], rows: list[int]) -> None:
+    """What `encode_readings` hands each "ardupilot" vehicle, element by element: the reference."""
+    if readings.imu is not None:
+        r = readings.imu
+        tilted = r.accel_z_mps2 is not None and r.gyro_xy_radps is not None
+        for i, k in enumerate(r.agents):
+            extra = (float(r.accel_z_mps2[i]), tuple(r.gyro_xy_radps[i].tolist())) if tilted else ()
+            vehicles[rows[int(k)]].observe("imu", t_s, tuple(r.accel_body_mps2[i].tolist()), float(r.gyro_z_radps[i]),
+                                           *extra)  # fmt: skip
+    if readings.compass is not None:
+        c = readings.compass
+        tilted = c.roll_rad is not None and c.pitch_rad is not None and c.body_rates_frd_radps is not None
+        for i, k in enumerate(c.agents):
+            extra = ()
+            if tilted:
+                extra = (float(c.roll_rad[i]), float(c.pitch_rad[i]), tuple(c.body_rates_frd_radps[i].tolist()))
+            vehicles[rows[int(k)]].observe("compass", t_s, float(c.heading_rad[i]), *extra)
+    if readings.gps is not None:
+        g = readings.gps
+
+        def reported(values, i):
+            return None if values is None or not np.isfinite(values[i]) else float(values[i])
+
+        for i, k in enumerate(g.agents):
+            velocity = None if g.velocity_mps is None else tuple(float(v) for v in g.velocity_mps[i])
+            accuracy = (reported(g.accuracy_m, i), reported(g.speed_accuracy_mps, i))
+            vehicles[rows[int(k)]].observe("gps", t_s, float(g.lat_deg[i]), float(g.lon_deg[i]), velocity, *accuracy)
+
+
+def _state(v: SimulatedVehicle) -> str:
+    """The readings a vehicle holds, with their types (a numpy scalar would show in its repr)."""
+    return repr((v._imu, v._compass, v._gps, v._gps_accuracy, type(v._gps[1]) if v._gps else None))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_readings_handed_over_array_by_array_are_the_element_by_element_ones(seed: int) -> None:
+    from firmware_bridge.readings import CompassReading, GpsFix, ImuReading, SensorReadings
+    from sitl.vehicles.vehicle_telemetry import encode_readings
+
+    rng = np.random.default_rng(200 + seed)
+    n = 7
+    fast = [SimulatedVehicle(k + 1, "buoy", 10.0) for k in range(n)]
+    plain = [SimulatedVehicle(k + 1, "buoy", 10.0) for k in range(n)]
+    rows = [int(r) for r in rng.permutation(n)]
+    for step in range(60):
+        t = 0.1 * step
+
+        def column(size, special=0.1):
+            values = rng.normal(size=size)
+            values[rng.random(size) < special] = rng.choice([math.nan, math.inf, -math.inf])
+            return values
+
+        def agents():
+            return rng.choice(n, size=int(rng.integers(1, n + 1)), replace=False)
+
+        tilted = bool(rng.integers(2))
+        a = agents()
+        imu = ImuReading(a, np.full(a.size, t), column((a.size, 2)), column(a.size),
+                         column(a.size) if tilted else None, column((a.size, 2)) if tilted else None)  # fmt: skip
+        a = agents()
+        compass = CompassReading(a, np.full(a.size, t), column(a.size), *(
+            (column(a.size), column(a.size), column((a.size, 3))) if tilted else ()))  # fmt: skip
+        a = agents()
+        gps = GpsFix(a, np.full(a.size, t), 1.3 + 1e-4 * column(a.size, 0), 103.9 + 1e-4 * column(a.size, 0),
+                     column((a.size, 2)) if rng.random() < 0.8 else None,
+                     np.abs(column(a.size, 0.4)) if rng.random() < 0.7 else None,
+                     np.abs(column(a.size, 0.4)) if rng.random() < 0.7 else None)  # fmt: skip
+        readings = SensorReadings(gps=gps, compass=compass, imu=imu)
+        encode_readings(readings, t, fast, [bytearray() for _ in range(n)], rows)
+        _plain_observe(readings, t, plain, rows)
+        for x, y in zip(fast, plain, strict=True):
+            assert _state(x) == _state(y)

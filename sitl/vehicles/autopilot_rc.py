@@ -109,7 +109,10 @@ class RcInput:
             if value != UINT16_MAX:
                 override[i] = int(value)
                 override_t[i] = t_s
-        for i, value in enumerate(raw[8:OVERRIDE_CHANNELS], 8):  # 9-18: 0 and UINT16_MAX leave alone
+        extra = raw[8:OVERRIDE_CHANNELS]  # 9-18: 0 and UINT16_MAX leave alone (all of them, as a rule)
+        if extra.count(0) + extra.count(UINT16_MAX) == len(extra):
+            extra = []
+        for i, value in enumerate(extra, 8):
             if value in (0, UINT16_MAX):
                 continue
             override[i] = 0 if value == UINT16_MAX - 1 else int(value)

@@ -350,6 +350,9 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         gcs = False
         if f.gcs_enable and self._gcs_seen_s is not None:
             gcs = t_s - self._gcs_seen_s >= f.gcs_timeout_s
+        state = self.failsafe
+        if not (radio or gcs or state.bits or state.triggered):
+            return  # FailsafeState.update would change nothing and say nothing (the usual case)
         may = self.mode not in (safety.HOLD, safety.RTL) or bool(f.options & 1)
         # As Rover calls failsafe_trigger: the radio check every loop when FS_THR_ENABLE, the GCS check when
         # FS_GCS_ENABLE and the GCS has been heard. Whichever call first finds FS_TIMEOUT passed names the
@@ -357,10 +360,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         checks = [(safety.FS_RADIO, "Radio", radio)] if f.thr_enable else []
         if f.gcs_enable and self._gcs_seen_s is not None:
             checks.append((safety.FS_GCS, "GCS", gcs))
-        state = self.failsafe
         for kind, name, on in checks:
-            if not (on or state.bits or state.triggered):
-                continue  # FailsafeState.update would change nothing and say nothing (the usual case)
             text = state.update(kind, name, on, t_s, f.timeout_s, may)
             if text is None:
                 continue
