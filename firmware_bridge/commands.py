@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from firmware_bridge.frames import pack_frame
+from firmware_bridge.frames import LAYOUTS, layout
 from firmware_bridge.rc_channels import STEERING_FULL_SCALE, THROTTLE_FULL_SCALE, RcChannelRange, ResolutionCarry
 
 PWM_NEUTRAL = 1500
@@ -55,7 +55,8 @@ class Encoder:
         mav = self.mav
         if mav.signing.sign_outgoing:
             return self.pack(message_class(*args))
-        data = pack_frame(message_class, args, mav.seq, mav.srcSystem, mav.srcComponent)
+        spec = LAYOUTS.get(message_class.id) or layout(message_class.id)
+        data = spec.frame(args, mav.seq, mav.srcSystem, mav.srcComponent)  # frames.pack_frame
         mav.seq = (mav.seq + 1) % 256
         return data
 

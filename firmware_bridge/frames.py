@@ -50,6 +50,7 @@ class MessageLayout:
         self.msg_id: int = message_class.id
         self.crc_extra: int = message_class.crc_extra
         self._crc_extra_byte = bytes((self.crc_extra,))
+        self._id_fields = (self.msg_id & 0xFFFF, self.msg_id >> 16)  # the header's message id, low 16 and high 8 bits
         self.struct: struct.Struct = message_class.unpacker
         self.name: str = message_class.msgname
         names = list(message_class.fieldnames)
@@ -104,6 +105,17 @@ class MessageLayout:
         """The MAVLink 2 payload: packed, trailing zero bytes removed (at least one byte is kept)."""
         return self.struct.pack(*self.values(args)).rstrip(b"\0") or b"\0"
 
+    def frame(self, args: Sequence[Any], seq: int, system_id: int, component_id: int) -> bytes:
+        """`pack_frame` of this message type: `values`, `payload` and the header in one call (the telemetry hot
+        path: a lockstep fleet of 45 vehicles packs about 430 frames per step)."""
+        given = len(args)
+        if given < self._n_fields:
+            args = (*args, *(self._tails.get(given) or self._tail(given)))
+        values = self._wire_getter(args) if self._flat else self.values(args)
+        payload = self.struct.pack(*values).rstrip(b"\0") or b"\0"
+        body = V2_HEADER.pack(V2_MARKER, len(payload), 0, 0, seq, system_id, component_id, *self._id_fields) + payload
+        return body + checksum(body[1:] + self._crc_extra_byte).to_bytes(2, "little")
+
     def fields(self, payload: bytes | bytearray) -> list[Any]:
         """Declaration-order field values from a (possibly zero-trimmed) payload, as pymavlink's decode gives
         them: arrays as lists, char arrays as bytes without trailing NULs."""
@@ -130,29 +142,24 @@ class MessageLayout:
         return out
 
 
-_LAYOUTS: dict[int, MessageLayout] = {}
+LAYOUTS: dict[int, MessageLayout] = {}  # by message id, as `layout` builds them
 
 
 def layout(msg_id: int) -> MessageLayout | None:
     """The layout of a message id the dialect knows (None otherwise); built once per id."""
-    found = _LAYOUTS.get(msg_id)
+    found = LAYOUTS.get(msg_id)
     if found is None:
         message_class = mavlink.mavlink_map.get(msg_id)
         if message_class is None:
             return None
-        found = _LAYOUTS[msg_id] = MessageLayout(message_class)
+        found = LAYOUTS[msg_id] = MessageLayout(message_class)
     return found
 
 
 def pack_frame(message_class: type, args: Sequence[Any], seq: int, system_id: int, component_id: int) -> bytes:
     """One unsigned MAVLink 2 frame of `message_class` from its `*_encode` arguments: the bytes pymavlink's
     `message.pack(mav)` gives with the same sequence number and source."""
-    spec = layout(message_class.id)
-    payload = spec.payload(args)
-    msg_id = spec.msg_id
-    header = V2_HEADER.pack(V2_MARKER, len(payload), 0, 0, seq, system_id, component_id, msg_id & 0xFFFF, msg_id >> 16)
-    body = header + payload
-    return body + checksum(body[1:] + spec._crc_extra_byte).to_bytes(2, "little")
+    return layout(message_class.id).frame(args, seq, system_id, component_id)
 
 
 def renumber(data: bytes | bytearray, first_seq: int) -> tuple[bytes, int]:

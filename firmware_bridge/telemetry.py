@@ -43,7 +43,7 @@ def _cm_s(v_mps: float) -> int:
 def _uint16s(values: Sequence[int], count: int) -> list[int]:
     """`count` values as uint16 fields: the first `count` of `values` as integers clamped to 0..UINT16_MAX, zeros
     after them (the clamping only done when some value needs it: these go out several times a second)."""
-    out = [int(v) for v in values[:count]] if isinstance(values, list) else [int(v) for v in list(values)[:count]]
+    out = list(map(int, values[:count] if isinstance(values, list) else list(values)[:count]))
     if out and (min(out) < 0 or max(out) > UINT16_MAX):
         out = [max(0, min(UINT16_MAX, v)) for v in out]
     return out + [0] * (count - len(out))
@@ -70,8 +70,9 @@ def _imu_fields(
 
 class TelemetryEncoder:
     """One vehicle's telemetry frames, sent as (system_id, component 1: the autopilot). Times t_s are on the
-    caller's clock, s; the frames carry the vehicle's time since boot, t_s - boot_s (the decoder stamps readings at
-    reception; it uses the vehicle's times to tell a repeated GPS fix, and a restart, from new ones)."""
+    caller's clock, s; the frames carry the vehicle's time since boot, t_s - boot_s (`_usec`, `_ms`; the decoder
+    stamps readings at reception; it uses the vehicle's times to tell a repeated GPS fix, and a restart, from new
+    ones)."""
 
     def __init__(
         self, system_id: int, component_id: int = mavlink.MAV_COMP_ID_AUTOPILOT1, *, boot_s: float = 0.0
@@ -80,14 +81,6 @@ class TelemetryEncoder:
         self.encoder = Encoder(system_id, component_id)
         self.mav = self.encoder.mav
         self._text_id = 0  # the id of the last chunked STATUSTEXT
-
-    def _usec(self, t_s: float) -> int:
-        """The vehicle's time since boot at t_s, us (0 before boot)."""
-        return _usec(t_s - self.boot_s)
-
-    def _ms(self, t_s: float) -> int:
-        """The vehicle's time since boot at t_s, ms (0 before boot; uint32, wrapping)."""
-        return _ms(t_s - self.boot_s)
 
     def pack(self, message) -> bytes:
         """Any pymavlink message as one frame from this vehicle (protocol replies: PARAM_VALUE, MISSION_*)."""
@@ -131,16 +124,17 @@ class TelemetryEncoder:
         None: the extensions left out; one None: that one 0, unknown)."""
         extensions = ()
         if h_acc_m is not None or vel_acc_mps is not None:
-            milli = [min(2**32 - 1, max(0, round(v * 1000.0))) if v is not None else 0 for v in (h_acc_m, vel_acc_mps)]
-            extensions = (0, milli[0], 0, milli[1])  # alt_ellipsoid, h_acc, v_acc, vel_acc
+            h_acc = 0 if h_acc_m is None else min(2**32 - 1, max(0, round(h_acc_m * 1000.0)))
+            vel_acc = 0 if vel_acc_mps is None else min(2**32 - 1, max(0, round(vel_acc_mps * 1000.0)))
+            extensions = (0, h_acc, 0, vel_acc)  # alt_ellipsoid, h_acc, v_acc, vel_acc
         vel, cog = UINT16_MAX, UINT16_MAX
-        if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
+        if velocity_mps is not None and all(map(math.isfinite, velocity_mps)):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
             vel = min(UINT16_MAX - 1, round(math.hypot(east, north) * 100.0))
             cog = round(math.degrees(math.atan2(east, north)) * 100.0) % 36000
         return self.encoder.frame(
             mavlink.MAVLink_gps_raw_int_message,
-            self._usec(t_s),
+            _usec(t_s - self.boot_s),
             fix_type,
             round(lat_deg * 1e7),
             round(lon_deg * 1e7),
@@ -165,14 +159,14 @@ class TelemetryEncoder:
         velocity north/east cm/s (0 when unknown), heading cdeg 0..35999 from our heading (from east, CCW), as
         ArduPilot sends its AHRS yaw (GCS_Common.cpp send_global_position_int); UINT16_MAX when unknown."""
         east, north = 0.0, 0.0
-        if velocity_mps is not None and all(math.isfinite(v) for v in velocity_mps):
+        if velocity_mps is not None and all(map(math.isfinite, velocity_mps)):
             east, north = float(velocity_mps[0]), float(velocity_mps[1])
         hdg = UINT16_MAX
         if heading_rad is not None and math.isfinite(heading_rad):
             hdg = round(math.degrees(yaw_from_heading(heading_rad)) * 100.0) % 36000
         return self.encoder.frame(
             mavlink.MAVLink_global_position_int_message,
-            self._ms(t_s),
+            _ms(t_s - self.boot_s),
             round(lat_deg * 1e7),
             round(lon_deg * 1e7),
             0,
@@ -192,13 +186,13 @@ class TelemetryEncoder:
         max_cm = round(max_m * 100.0)
         current = max_cm + 1 if not math.isfinite(distance_m) else min(max_cm + 1, round(distance_m * 100.0))
         return self.encoder.frame(mavlink.MAVLink_distance_sensor_message,
-            self._ms(t_s), round(min_m * 100.0), max_cm, current, mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,
+            _ms(t_s - self.boot_s), round(min_m * 100.0), max_cm, current, mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,
             int(sensor_id), mavlink.MAV_SENSOR_ROTATION_CUSTOM, 255,
         )  # fmt: skip
 
     def light(self, t_s: float, left: float, right: float) -> bytes:
         """The two light readings as NAMED_VALUE_FLOAT "light_l" and "light_r" (W/m^2)."""
-        ms = self._ms(t_s)
+        ms = _ms(t_s - self.boot_s)
         named = mavlink.MAVLink_named_value_float_message
         return self.encoder.frame(named, ms, b"light_l", float(left)) + self.encoder.frame(
             named, ms, b"light_r", float(right)
@@ -218,7 +212,7 @@ class TelemetryEncoder:
         down), pitch (nose up) and the body rates about x forward and y right (rollspeed, pitchspeed), rad, rad/s."""
         return self.encoder.frame(
             mavlink.MAVLink_attitude_message,
-            self._ms(t_s),
+            _ms(t_s - self.boot_s),
             float(roll_rad),
             float(pitch_rad),
             yaw_from_heading(heading_rad),
@@ -239,7 +233,7 @@ class TelemetryEncoder:
         """SCALED_IMU (mG, mrad/s, FRD body frame) from our IMU (x forward, y left, z up; yaw rate CCW): a level
         hull's unless given the z specific force (None: 1 g) and the rates about x and y."""
         return self.encoder.frame(
-            mavlink.MAVLink_scaled_imu_message, self._ms(t_s), *_imu_fields(accel_body_mps2, gyro_z_radps,
+            mavlink.MAVLink_scaled_imu_message, _ms(t_s - self.boot_s), *_imu_fields(accel_body_mps2, gyro_z_radps,
                                                                               accel_z_mps2, gyro_xy_radps)
         )  # fmt: skip
 
@@ -254,22 +248,25 @@ class TelemetryEncoder:
     ) -> bytes:
         """RAW_IMU as ArduPilot fills it (GCS_Common.cpp send_raw_imu: mG and mrad/s, FRD), as `scaled_imu`."""
         fields = _imu_fields(accel_body_mps2, gyro_z_radps, accel_z_mps2, gyro_xy_radps)
-        return self.encoder.frame(mavlink.MAVLink_raw_imu_message, self._usec(t_s), *fields, 0, 0)
+        return self.encoder.frame(mavlink.MAVLink_raw_imu_message, _usec(t_s - self.boot_s), *fields, 0, 0)
 
     def wheel_distance(self, t_s: float, distance_m: Sequence[float], count: int = 2) -> bytes:
         """WHEEL_DISTANCE with `count` wheels (left, right), cumulative metres."""
         distances = [float(distance_m[0]), float(distance_m[1])] + [0.0] * 14
-        return self.encoder.frame(mavlink.MAVLink_wheel_distance_message, self._usec(t_s), int(count), distances)
+        usec = _usec(t_s - self.boot_s)
+        return self.encoder.frame(mavlink.MAVLink_wheel_distance_message, usec, int(count), distances)
 
     def rc_channels(self, t_s: float, pwm_us: Sequence[int], channel_count: int) -> bytes:
         """RC_CHANNELS: the autopilot's RC inputs (us; 0 = none), 18 channels, RSSI unknown (255)."""
         values = _uint16s(pwm_us, 18)
-        return self.encoder.frame(mavlink.MAVLink_rc_channels_message, self._ms(t_s), int(channel_count), *values, 255)
+        ms = _ms(t_s - self.boot_s)
+        return self.encoder.frame(mavlink.MAVLink_rc_channels_message, ms, int(channel_count), *values, 255)
 
     def servo_output_raw(self, t_s: float, pwm_us: Sequence[int]) -> bytes:
         """SERVO_OUTPUT_RAW: the outputs SERVO1..16 (us; 0 = no output)."""
         values = _uint16s(pwm_us, 16)
-        return self.encoder.frame(mavlink.MAVLink_servo_output_raw_message, self._usec(t_s) & 0xFFFFFFFF, 0, *values)
+        usec = _usec(t_s - self.boot_s) & 0xFFFFFFFF
+        return self.encoder.frame(mavlink.MAVLink_servo_output_raw_message, usec, 0, *values)
 
     def home_position(self, t_s: float, lat_e7: int, lon_e7: int, alt_m: float = 0.0) -> bytes:
         """HOME_POSITION as ArduPilot sends it (GCS_Common.cpp send_home_position): lat/lon degE7, altitude mm,
@@ -287,7 +284,7 @@ class TelemetryEncoder:
             0.0,
             0.0,
             0.0,
-            self._usec(t_s),
+            _usec(t_s - self.boot_s),
         )
 
     def autopilot_version(self, capabilities: int, flight_sw_version: int, custom_version: bytes, uid: int) -> bytes:
@@ -346,7 +343,8 @@ class TelemetryEncoder:
 
     def system_time(self, t_s: float, unix_time_s: float = 0.0) -> bytes:
         """SYSTEM_TIME: Unix time us (0 when unknown) and time since boot ms."""
-        return self.encoder.frame(mavlink.MAVLink_system_time_message, max(0, int(unix_time_s * 1e6)), self._ms(t_s))
+        unix_us, ms = max(0, int(unix_time_s * 1e6)), _ms(t_s - self.boot_s)
+        return self.encoder.frame(mavlink.MAVLink_system_time_message, unix_us, ms)
 
     def message_interval(self, message_id: int, interval_us: int) -> bytes:
         """MESSAGE_INTERVAL (reply to MAV_CMD_GET_MESSAGE_INTERVAL): -1 = off, 0 = not available."""

@@ -243,7 +243,7 @@ def test_rc_input_update_kept_between_changes_is_channel_by_channel_update(seed:
         t = max(0.0, t + float(rng.choice([0.0, 0.05, 0.1, 0.25, -0.1])))
         expected = _update_channel_by_channel(rc, t, timeout, trims)
         expected_any = any(rc.has_override(i, t, timeout) for i in range(OVERRIDE_CHANNELS))
-        rc.update(t, timeout, trims)
+        assert rc.update(t, timeout, trims) == expected_any
         assert rc.radio_in == expected
         assert rc.any_override(t, timeout) == expected_any
 

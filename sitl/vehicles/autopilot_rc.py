@@ -104,16 +104,19 @@ class RcInput:
     def apply_override(self, raw: list[int], t_s: float) -> None:
         """Store an RC_CHANNELS_OVERRIDE's 18 values (GCS_Common.cpp handle_rc_channels_override)."""
         self._mutations += 1
-        for i, value in enumerate(raw[:OVERRIDE_CHANNELS]):
-            if i < 8:
-                if value == UINT16_MAX:
-                    continue
-            elif value in (0, UINT16_MAX):
+        override, override_t = self.override, self.override_t
+        for i, value in enumerate(raw[:8]):  # channels 1-8: UINT16_MAX leaves alone
+            if value != UINT16_MAX:
+                override[i] = int(value)
+                override_t[i] = t_s
+        extra = raw[8:OVERRIDE_CHANNELS]  # 9-18: 0 and UINT16_MAX leave alone (all of them, as a rule)
+        if extra.count(0) + extra.count(UINT16_MAX) == len(extra):
+            extra = []
+        for i, value in enumerate(extra, 8):
+            if value in (0, UINT16_MAX):
                 continue
-            elif value == UINT16_MAX - 1:
-                value = 0
-            self.override[i] = int(value)
-            self.override_t[i] = t_s
+            override[i] = 0 if value == UINT16_MAX - 1 else int(value)
+            override_t[i] = t_s
         self.last_valid_s = t_s
 
     def clear_overrides(self) -> None:
@@ -153,10 +156,10 @@ class RcInput:
         live = (t_s - self.override_t[i] < timeout_s for i in range(OVERRIDE_CHANNELS) if self.override[i])
         return any(self.override) if timeout_s < 0 else any(live)
 
-    def update(self, t_s: float, timeout_s: float, trims: list[int]) -> None:
-        """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value. (The test
-        of `has_override` inlined, all channels in one comprehension; skipped while nothing it reads has changed:
-        this runs for every vehicle several times a step.)"""
+    def update(self, t_s: float, timeout_s: float, trims: list[int]) -> bool:
+        """Refresh radio_in (RC_Channel::update): override, else the receiver, else the last value; returns
+        `any_override(t_s, timeout_s)`. (The test of `has_override` inlined, all channels in one comprehension;
+        skipped while nothing it reads has changed: this runs for every vehicle several times a step.)"""
         inputs = self._inputs
         if (
             inputs is not None
@@ -167,7 +170,7 @@ class RcInput:
         ):
             if self.receiver:
                 self.last_valid_s = t_s
-            return
+            return self._live[6]
         override, override_t = self.override, self.override_t
         if timeout_s == 0:  # overrides disabled
             live = [False] * OVERRIDE_CHANNELS
@@ -185,6 +188,7 @@ class RcInput:
         first = min(expiring) if expiring else None
         self._live = (override, override_t, self._mutations, timeout_s, t_s, first, any(live))
         self._inputs = (trims, self.radio_in, self.receiver)
+        return self._live[6]  # what `any_override` finds now: `_unchanged` holds at t_s
 
 
 @dataclass

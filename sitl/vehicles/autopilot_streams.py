@@ -178,16 +178,28 @@ class StreamSchedule:
             return False
         return t_s + 1e-9 >= self.next_due_s.get(message_id, -math.inf)
 
+    def scheduled(self, message_ids: tuple[int, ...]) -> tuple[tuple[int, float], ...]:
+        """(id, period s) of the ids among `message_ids` (kept in their order) that have an interval; worked out
+        again only when an interval changes (`_set`), for a caller that checks `due` and calls `sent` itself."""
+        scheduled = self._scheduled.get(message_ids)
+        if scheduled is None:
+            intervals = self.interval_ms
+            scheduled = tuple((i, intervals[i] / 1000.0) for i in message_ids if intervals.get(i, 0) > 0)
+            self._scheduled[message_ids] = scheduled
+        return scheduled
+
     def due_among(self, message_ids: tuple[int, ...], t_s: float) -> list[int]:
         """The ids among `message_ids` (kept in their order) that `due` says may go out at t_s, in one pass."""
-        scheduled = self._scheduled.get(message_ids)
-        if scheduled is None:  # which of them have an interval: changes only with an interval (`_set`)
-            intervals = self.interval_ms
-            scheduled = self._scheduled[message_ids] = tuple(i for i in message_ids if intervals.get(i, 0) > 0)
         next_due, limit = self.next_due_s, t_s + 1e-9
-        return [i for i in scheduled if limit >= next_due.get(i, -math.inf)]
+        return [i for i, _ in self.scheduled(message_ids) if limit >= next_due.get(i, -math.inf)]
 
     def sent(self, message_id: int, t_s: float) -> None:
         period = self.interval_ms.get(message_id, 0) / 1000.0
-        due = self.next_due_s.get(message_id, -math.inf) + period
-        self.next_due_s[message_id] = due if due > t_s - period else t_s + period
+        self.next_due_s[message_id] = next_due(self.next_due_s.get(message_id, -math.inf), period, t_s)
+
+
+def next_due(due_s: float, period_s: float, t_s: float) -> float:
+    """When a message due at due_s, sent at t_s, is due again: on its grid, or a period after t_s when the grid has
+    fallen a period behind (the caller's step is longer than the period)."""
+    due = due_s + period_s
+    return due if due > t_s - period_s else t_s + period_s

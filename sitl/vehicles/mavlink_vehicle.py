@@ -40,6 +40,7 @@ from sitl.vehicles import autopilot_safety as safety
 from sitl.vehicles.autopilot_mission import MissionStore
 from sitl.vehicles.autopilot_params import SERVO_OUTPUTS, STREAM_PORT_PREFIX, ParameterStore, rover_parameter_table
 from sitl.vehicles.autopilot_rc import (
+    OMNI_FACTORS,
     PilotOutput,
     RcInput,
     omni_motor_outputs,
@@ -121,7 +122,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
             overrides.setdefault("INITIAL_MODE", int(mode))
         table = rover_parameter_table(kind, system_id, gcs_system_id)
         self.params = ParameterStore(table, self.telemetry.pack, self.telemetry.mav, overrides)
-        self._rc_cache: tuple[list[int], dict[str, tuple | None]] | None = None  # see _rc_setup
+        self._rc_cache: tuple[list[int], dict[str, tuple | None], dict] | None = None  # see _rc_setup
         self._rc_cache_version = -1
         initial = self.params.get_int("INITIAL_MODE")
         self.mode = initial if initial in SUPPORTED_MODES else ROVER_MODES["MANUAL"]
@@ -217,7 +218,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         try:
             self._tick(t_s)
             if self._accepts(source_system) and self._targets_me(int(fields[0]), int(fields[1])):
-                self._override(source_system, [int(v) for v in fields[2:20]], t_s)
+                self._override(source_system, list(map(int, fields[2:20])), t_s)
         except Exception:  # one bad message must never stop the vehicle (#17)
             self.counters.errors += 1
 
@@ -311,9 +312,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         if t_s < self._t:
             return
         self._t = t_s
-        timeout = self.failsafe_s
-        self.rc.update(t_s, timeout, self._trims())
-        live = self.rc.any_override(t_s, timeout)
+        live = self.rc.update(t_s, float(self.params.values["RC_OVERRIDE_TIME"]), self._trims())  # failsafe_s
         if self._driving_override and not live:
             self._driving_override = False
             if self.armed and self.mode in DRIVING_MODES and np.any(self._command):
@@ -326,7 +325,8 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         if not self.armed and t_s >= self._next_prearm_s:
             self._next_prearm_s = t_s + safety.PREARM_DISPLAY_PERIOD_S
             self._report_failures("PreArm", safety.arming_failures(self))
-        self.outbox += self.mission.tick(t_s)
+        if self.mission.receiving:  # MissionStore.tick has nothing to do otherwise
+            self.outbox += self.mission.tick(t_s)
 
     def _failsafe_params(self) -> FailsafeParams:
         """The failsafe parameters, read again only when a parameter changed (checked at every tick)."""
@@ -350,6 +350,9 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         gcs = False
         if f.gcs_enable and self._gcs_seen_s is not None:
             gcs = t_s - self._gcs_seen_s >= f.gcs_timeout_s
+        state = self.failsafe
+        if not (radio or gcs or state.bits or state.triggered):
+            return  # FailsafeState.update would change nothing and say nothing (the usual case)
         may = self.mode not in (safety.HOLD, safety.RTL) or bool(f.options & 1)
         # As Rover calls failsafe_trigger: the radio check every loop when FS_THR_ENABLE, the GCS check when
         # FS_GCS_ENABLE and the GCS has been heard. Whichever call first finds FS_TIMEOUT passed names the
@@ -358,7 +361,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         if f.gcs_enable and self._gcs_seen_s is not None:
             checks.append((safety.FS_GCS, "GCS", gcs))
         for kind, name, on in checks:
-            text = self.failsafe.update(kind, name, on, t_s, f.timeout_s, may)
+            text = state.update(kind, name, on, t_s, f.timeout_s, may)
             if text is None:
                 continue
             if not text.startswith("!"):
@@ -417,11 +420,17 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         return list(self._servo_cache[1])
 
     def _servo_pwms(self, out: PilotOutput) -> list[int]:
+        """Each output's PWM by its SERVOn_FUNCTION; only the outputs the functions ask for are worked out."""
         _, _, frame_type, functions = self._frame()
-        values = {26: self._steering_output(out), 70: out.throttle}
-        values[73], values[74] = skid_outputs(out)
-        for k, v in enumerate(omni_motor_outputs(frame_type, out)):
-            values[33 + k] = v
+        values: dict[int, float] = {}
+        if 26 in functions:
+            values[26] = self._steering_output(out)
+        values[70] = out.throttle
+        if 73 in functions or 74 in functions:
+            values[73], values[74] = skid_outputs(out)
+        if frame_type in OMNI_FACTORS:
+            for k, v in enumerate(omni_motor_outputs(frame_type, out)):
+                values[33 + k] = v
         return [servo_pwm(values[f]) if f in values else 0 for f in functions]
 
 

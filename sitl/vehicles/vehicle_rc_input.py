@@ -77,9 +77,10 @@ class RcInputHandling:
         else:
             self.counters.idle += 1
 
-    def _rc_setup(self) -> tuple[list[int], dict[str, tuple | None]]:
-        """RC1..8_TRIM and, per role, (channel, MIN, TRIM, MAX, DZ, REVERSED) or None for an invalid map; read
-        again from the parameters only when one has changed."""
+    def _rc_setup(self) -> tuple[list[int], dict[str, tuple | None], dict[tuple[str, bool, int], float]]:
+        """RC1..8_TRIM, per role (channel, MIN, TRIM, MAX, DZ, REVERSED) or None for an invalid map, and the
+        values read so far ((role, paddle, PWM) -> `_channel`); read again from the parameters only when one has
+        changed."""
         if self._rc_cache_version != self.params.version or self._rc_cache is None:
             p = self.params
             trims = [p.get_int(f"RC{ch}_TRIM") for ch in range(1, 9)]
@@ -90,21 +91,29 @@ class RcInputHandling:
                     ch, p.get_int(f"RC{ch}_MIN"), p.get_int(f"RC{ch}_TRIM"), p.get_int(f"RC{ch}_MAX"),
                     p.get_int(f"RC{ch}_DZ"), bool(p.get_int(f"RC{ch}_REVERSED")),
                 )  # fmt: skip
-            self._rc_cache, self._rc_cache_version = (trims, roles), p.version
+            self._rc_cache, self._rc_cache_version = (trims, roles, {}), p.version
         return self._rc_cache
 
     def _trims(self) -> list[int]:
         return self._rc_setup()[0]
 
     def _channel(self, role: str, paddle: bool = False) -> float:
-        setup = self._rc_setup()[1][role]
+        """A role's RC input as Rover reads it (`scale_angle`, or `norm_input_dz` for a paddle), each PWM worked out
+        once per parameter version: a pure function of the PWM and the calibration (at most 1,400 override PWMs)."""
+        _, roles, seen = self._rc_setup()
+        setup = roles[role]
         if setup is None:
             return 0.0  # RC_Channels: a dummy channel for an invalid map
-        ch, *calib = setup
-        pwm = self.rc.radio_in[ch - 1]
+        pwm = self.rc.radio_in[setup[0] - 1]
         if pwm == 0:
             return 0.0
-        return norm_input_dz(pwm, *calib) if paddle else scale_angle(pwm, *calib, ANGLE_FULL_SCALE[role])
+        key = (role, paddle, pwm)
+        value = seen.get(key)
+        if value is None:
+            calib = setup[1:]
+            value = norm_input_dz(pwm, *calib) if paddle else scale_angle(pwm, *calib, ANGLE_FULL_SCALE[role])
+            seen[key] = value
+        return value
 
     def _read_pilot(self) -> tuple[float, float, float]:
         """(steering, throttle, lateral) from RC inputs 1-8 (the RCMAP roles are among them) and the parameters;

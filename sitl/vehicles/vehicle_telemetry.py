@@ -4,6 +4,7 @@ say (sitl/vehicles/mavlink_vehicle.py)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -38,30 +39,37 @@ def encode_readings(
     def direct(row: int) -> bool:
         return vehicles[row].streams == "sensor-rate"
 
+    # Each array converted to Python numbers once (`_floats`, `tolist`), not element by element.
     if readings.imu is not None:
         r = readings.imu
         tilted = r.accel_z_mps2 is not None and r.gyro_xy_radps is not None
+        accel, gyro_z = r.accel_body_mps2.tolist(), _floats(r.gyro_z_radps)
+        accel_z, gyro_xy = (_floats(r.accel_z_mps2), r.gyro_xy_radps.tolist()) if tilted else (None, None)
         for i, row in vehicle_rows(r.agents):
-            extra = (float(r.accel_z_mps2[i]), tuple(r.gyro_xy_radps[i].tolist())) if tilted else ()
-            vehicles[row].observe("imu", t_s, tuple(r.accel_body_mps2[i].tolist()), float(r.gyro_z_radps[i]), *extra)
+            extra = (accel_z[i], tuple(gyro_xy[i])) if tilted else ()
+            vehicles[row].observe("imu", t_s, tuple(accel[i]), gyro_z[i], *extra)
             if direct(row):
                 more = {"accel_z_mps2": extra[0], "gyro_xy_radps": extra[1]} if tilted else {}
                 frames[row] += vehicles[row].telemetry.scaled_imu(t_s, r.accel_body_mps2[i], r.gyro_z_radps[i], **more)
     if readings.compass is not None:
         c = readings.compass
         tilted = c.roll_rad is not None and c.pitch_rad is not None and c.body_rates_frd_radps is not None
+        heading = _floats(c.heading_rad)
+        if tilted:
+            roll, pitch, rates = _floats(c.roll_rad), _floats(c.pitch_rad), c.body_rates_frd_radps.tolist()
         for i, row in vehicle_rows(c.agents):
-            extra = ()
-            if tilted:
-                extra = (float(c.roll_rad[i]), float(c.pitch_rad[i]), tuple(c.body_rates_frd_radps[i].tolist()))
-            vehicles[row].observe("compass", t_s, float(c.heading_rad[i]), *extra)
+            extra = (roll[i], pitch[i], tuple(rates[i])) if tilted else ()
+            vehicles[row].observe("compass", t_s, heading[i], *extra)
     if readings.gps is not None:
         g = readings.gps
+        lat, lon = _floats(g.lat_deg), _floats(g.lon_deg)
+        velocities = None if g.velocity_mps is None else g.velocity_mps.tolist()
+        h_acc, speed_acc = _reported(g.accuracy_m, len(lat)), _reported(g.speed_accuracy_mps, len(lat))
         for i, row in vehicle_rows(g.agents):
-            velocity = None if g.velocity_mps is None else tuple(float(v) for v in g.velocity_mps[i])
-            accuracy = (_reported(g.accuracy_m, i), _reported(g.speed_accuracy_mps, i))
+            velocity = None if velocities is None else tuple(map(float, velocities[i]))
+            accuracy = (h_acc[i], speed_acc[i])
             vehicle = vehicles[row]
-            vehicle.observe("gps", t_s, float(g.lat_deg[i]), float(g.lon_deg[i]), velocity, *accuracy)
+            vehicle.observe("gps", t_s, lat[i], lon[i], velocity, *accuracy)
             if direct(row):
                 frames[row] += vehicle.telemetry.gps_raw_int(
                     t_s, g.lat_deg[i], g.lon_deg[i], velocity, h_acc_m=accuracy[0], vel_acc_mps=accuracy[1]
@@ -91,11 +99,16 @@ def encode_readings(
                 frames[row] += vehicles[row].telemetry.wheel_distance(t_s, distances)
 
 
-def _reported(values: np.ndarray | None, i: int) -> float | None:
-    """A receiver's reported accuracy of row i (None: it reports none)."""
-    if values is None or not np.isfinite(values[i]):
-        return None
-    return float(values[i])
+def _floats(values: np.ndarray) -> list[float]:
+    """A 1-d array's values as Python floats (what float() of each element gives)."""
+    return list(map(float, values.tolist()))
+
+
+def _reported(values: np.ndarray | None, n: int) -> list[float | None]:
+    """A receiver's reported accuracy of each of n rows (None: it reports none, or not a finite number)."""
+    if values is None:
+        return [None] * n
+    return [v if math.isfinite(v) else None for v in _floats(values)]
 
 
 def prepend_streams(t_s: float, vehicles: Sequence[SimulatedVehicle], frames: list[bytearray]) -> None:
