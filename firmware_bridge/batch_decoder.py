@@ -19,7 +19,9 @@ the chunks one by one as before.
 
 from __future__ import annotations
 
+import functools
 import math
+import operator
 import re
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -35,9 +37,10 @@ from firmware_bridge.decoder import (
     STANDARD_GRAVITY_MPS2,
     UINT16_MAX,
     TelemetryDecoder,
+    heartbeat_reading,
     sent_stamp_us,
 )
-from firmware_bridge.frames import V2_HEADER_LEN, V2_MARKER, checksum, decode_unsigned, layout
+from firmware_bridge.frames import V2_HEADER, V2_HEADER_LEN, V2_MARKER, checksum, decode_unsigned, layout
 from firmware_bridge.readings import CompassReading, GpsFix, ImuReading
 
 _STRUCT_TO_NUMPY = {"Q": "<u8", "q": "<i8", "I": "<u4", "i": "<i4", "H": "<u2", "h": "<i2", "B": "u1", "b": "i1",
@@ -92,26 +95,29 @@ class Columns:
 
 # A frame found in a chunk: (decoder index, start, length, message id, source system, source component).
 _Frame = tuple[int, int, int, int, int, int]
+_CRC_EXTRA = {msg_id: bytes((cls.crc_extra,)) for msg_id, cls in mavlink.mavlink_map.items()}  # as `layout` has it
 
 
 def checked_frames(chunk: bytes, decoder: int, out: list[_Frame]) -> bool:
     """Append the frames of one chunk; False when it is anything but whole, unsigned, known, checked MAVLink 2
     frames back to back (then `feed`'s own framing must judge it)."""
     pos, n = 0, len(chunk)
+    crc_extra = _CRC_EXTRA
+    unpack_header = V2_HEADER.unpack_from
     while pos < n:
-        if n - pos < V2_HEADER_LEN or chunk[pos] != V2_MARKER or chunk[pos + 2] or chunk[pos + 3]:
+        if n - pos < V2_HEADER_LEN:
             return False
-        end = pos + V2_HEADER_LEN + chunk[pos + 1] + _CRC_LEN
-        if end > n:
+        marker, payload_len, incompat, compat, _, system, component, id_low, id_high = unpack_header(chunk, pos)
+        if marker != V2_MARKER or incompat or compat:
             return False
-        msg_id = chunk[pos + 7] | (chunk[pos + 8] << 8) | (chunk[pos + 9] << 16)
-        spec = layout(msg_id)
-        if spec is None:
+        end = pos + V2_HEADER_LEN + payload_len + _CRC_LEN
+        msg_id = id_low | (id_high << 16)
+        extra = crc_extra.get(msg_id)
+        if end > n or extra is None:
             return False
-        crc = checksum(spec._crc_extra_byte, checksum(chunk[pos + 1 : end - _CRC_LEN]))
-        if crc != chunk[end - 2] | (chunk[end - 1] << 8):
+        if checksum(extra, checksum(chunk[pos + 1 : end - _CRC_LEN])) != chunk[end - 2] | (chunk[end - 1] << 8):
             return False
-        out.append((decoder, pos, end - pos, msg_id, chunk[pos + 5], chunk[pos + 6]))
+        out.append((decoder, pos, end - pos, msg_id, system, component))
         pos = end
     return True
 
@@ -125,6 +131,10 @@ def _fast_path(decoder: TelemetryDecoder) -> bool:
     )
 
 
+# How a decoder reads a believed frame (`_routes`): not at all, column-wise, or one at a time (`_decode_one`).
+_UNREAD, _COLUMN, _ONE_BY_ONE = range(3)
+
+
 def decode_batch(
     decoders: Sequence[TelemetryDecoder], chunks: Sequence[bytes]
 ) -> tuple[list[list[object]], Columns] | None:
@@ -132,98 +142,172 @@ def decode_batch(
     same order, except that readings of the column-wise types are `Row`s of the returned `Columns`; None
     (nothing fed, nothing counted) when some chunk or decoder is off the fast path (module docstring)."""
     frames: list[_Frame] = []
+    ends: list[int] = []  # per decoder, where its frames end in `frames`
     for k, (decoder, chunk) in enumerate(zip(decoders, chunks, strict=True)):
         if chunk and not (_fast_path(decoder) and checked_frames(chunk, k, frames)):
             return None
-    for decoder, chunk in zip(decoders, chunks, strict=True):
-        if chunk:  # `feed` is not called for nothing
-            decoder.counters.bytes_fed += len(chunk)
-            decoder.counters.pending_bytes = 0
-    times: list[float | None] = [None] * len(decoders)
-    believed: list[_Frame] = []
-    names = _NAMES
-    for frame in frames:
-        k, _, length, msg_id, system, component = frame
-        decoder = decoders[k]
-        c = decoder.counters
-        c.received += 1
-        c.frame_bytes += length
-        c.decoded += 1
-        name = names[msg_id]
-        c.by_type[name] = c.by_type.get(name, 0) + 1
-        if system != decoder.source_system:
-            c.other_system += 1
-        elif decoder.source_component is not None and component != decoder.source_component:
-            c.other_component += 1
-        else:
-            if times[k] is None:
-                times[k] = float(decoder.clock())
-            believed.append(frame)
-    columns = Columns()
-    slots = _decode_columnar(decoders, chunks, believed, times, columns)
+        ends.append(len(frames))
+    # Counted as `feed` counts, each decoder's frames in stream order; each believed frame read gets its place in
+    # its decoder's readings (filled below; None where it gives no reading).
     per_decoder: list[list[object]] = [[] for _ in decoders]
-    for frame, slot in zip(believed, slots, strict=True):
-        k = frame[0]
-        if slot is _NOT_COLUMNAR:
-            slot = _decode_one(decoders[k], chunks[k], frame, times[k])
-        if slot is not None:
-            per_decoder[k].append(slot)
+    times: list[float | None] = [None] * len(decoders)
+    column_wise: dict[int, list[tuple[int, int, _Frame]]] = {}  # per message id: (decoder, place, frame)
+    one_by_one: list[tuple[int, int, _Frame]] = []
+    names = _NAMES
+    first = 0
+    for k, (decoder, chunk, last) in enumerate(zip(decoders, chunks, ends, strict=True)):
+        if first == last:
+            continue  # `feed` is not called for nothing (and a chunk on the fast path holds a frame)
+        c = decoder.counters
+        c.bytes_fed += len(chunk)
+        c.pending_bytes = 0
+        c.received += last - first
+        c.decoded += last - first
+        c.frame_bytes += len(chunk)  # the frames are the whole chunk
+        by_type = c.by_type
+        system, component = decoder.source_system, decoder.source_component
+        routes = _routes(decoder._unread)
+        readings = per_decoder[k]
+        believed = False
+        for i in range(first, last):
+            frame = frames[i]
+            msg_id = frame[3]
+            name = names[msg_id]
+            by_type[name] = by_type.get(name, 0) + 1
+            if frame[4] != system:
+                c.other_system += 1
+            elif component is not None and frame[5] != component:
+                c.other_component += 1
+            else:
+                believed = True
+                route = routes[msg_id]
+                if route == _COLUMN:
+                    column_wise.setdefault(msg_id, []).append((k, len(readings), frame))
+                    readings.append(None)
+                elif route == _ONE_BY_ONE:
+                    one_by_one.append((k, len(readings), frame))
+                    readings.append(None)
+        if believed:
+            times[k] = float(decoder.clock())
+        first = last
+    columns = Columns()
+    _decode_columnar(decoders, chunks, column_wise, times, columns, per_decoder)
+    for k, place, frame in one_by_one:  # after the clock samples of the column-wise types, as `feed` orders them
+        per_decoder[k][place] = _decode_one(decoders[k], chunks[k], frame, times[k])
+    for k, readings in enumerate(per_decoder):
+        if None in readings:
+            per_decoder[k] = [r for r in readings if r is not None]
     return per_decoder, columns
 
 
 _NAMES = {msg_id: cls.msgname for msg_id, cls in mavlink.mavlink_map.items()}
-_NOT_COLUMNAR = object()
+
+
+class _FieldReader:
+    """Some fields of one message type straight from its payload (as pymavlink's decode gives their values; an
+    array as a tuple), without a message object."""
+
+    def __init__(self, message_class: type, *names: str) -> None:
+        types = dict(zip(message_class.fieldnames, message_class.fieldtypes, strict=True))
+        where, at = {}, 0
+        for name, length in zip(message_class.ordered_fieldnames, message_class.array_lengths, strict=True):
+            count = length if length and types[name] != "char" else 1  # a char array is one struct value
+            where[name] = slice(at, at + count) if length and types[name] != "char" else at
+            at += count
+        if len(names) < 2:
+            raise ValueError("a reader takes two fields or more")
+        self.struct = message_class.unpacker
+        self._get = operator.itemgetter(*(where[name] for name in names))
+
+    def __call__(self, payload: bytes) -> tuple:
+        size = self.struct.size
+        return self._get(self.struct.unpack(payload[:size].ljust(size, b"\0")))
+
+
+_SYS_STATUS = _FieldReader(mavlink.MAVLink_sys_status_message, "voltage_battery", "battery_remaining")
+_BATTERY_STATUS = _FieldReader(mavlink.MAVLink_battery_status_message, "voltages", "voltages_ext", "battery_remaining")
+_HEARTBEAT = _FieldReader(
+    mavlink.MAVLink_heartbeat_message, "type", "autopilot", "base_mode", "custom_mode", "system_status"
+)
+
+
+def _sys_status(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: float) -> object:
+    return decoder.sys_status_battery(*_SYS_STATUS(payload), t_s)
+
+
+def _battery_status(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: float) -> object:
+    return decoder.battery_status_battery(*_BATTERY_STATUS(payload), t_s)
+
+
+def _heartbeat(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: float) -> object:
+    return heartbeat_reading(t_s, frame[4], frame[5], *_HEARTBEAT(payload))
+
+
+# The types a vehicle sends that `TelemetryDecoder` reads one at a time, read from their fields alone (the same
+# arithmetic: the decoder's converters call the same functions of the fields).
+_FIELD_READERS = {
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: _sys_status,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: _battery_status,
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: _heartbeat,
+}
 
 
 def _decode_one(decoder: TelemetryDecoder, chunk: bytes, frame: _Frame, t_s: float) -> object:
-    """A frame of a type read one message at a time (HEARTBEAT, battery, acks, wheels): as `feed` reads it."""
+    """A frame of a type read one at a time (HEARTBEAT, battery, acks, wheels): the reading `feed` makes of it,
+    or None."""
     _, start, length, msg_id, _, _ = frame
-    convert = _CONVERTERS.get(_NAMES[msg_id])
-    if convert is None or msg_id in decoder._unread:
-        return None
+    read = _FIELD_READERS.get(msg_id)
+    if read is not None:
+        return read(decoder, chunk[start + V2_HEADER_LEN : start + length - _CRC_LEN], frame, t_s)
     raw = bytearray(chunk[start : start + length])
     crc = raw[-2] | (raw[-1] << 8)
     try:  # a checked frame of a known layout always decodes; whatever a converter refuses gives no reading
-        return convert(decoder, decode_unsigned(raw, layout(msg_id), crc), t_s)
+        return _CONVERTERS[_NAMES[msg_id]](decoder, decode_unsigned(raw, layout(msg_id), crc), t_s)
     except Exception:  # never raised into a fleet's step
         return None
+
+
+@functools.cache
+def _routes(unread: frozenset[int]) -> dict[int, int]:
+    """How a decoder that does not read the message ids `unread` reads each message id (`_UNREAD`...)."""
+    routes = {}
+    for msg_id, cls in mavlink.mavlink_map.items():
+        if msg_id in unread or cls.msgname not in _CONVERTERS:
+            routes[msg_id] = _UNREAD
+        else:
+            routes[msg_id] = _COLUMN if msg_id in _COLUMNAR else _ONE_BY_ONE
+    return routes
 
 
 def _decode_columnar(
     decoders: Sequence[TelemetryDecoder],
     chunks: Sequence[bytes],
-    believed: list[_Frame],
+    column_wise: dict[int, list[tuple[int, int, _Frame]]],
     times: list[float | None],
     columns: Columns,
-) -> list[object]:
-    """Per believed frame: a `Row`, None (no reading) or _NOT_COLUMNAR (to be read one at a time)."""
-    slots: list[object] = [_NOT_COLUMNAR] * len(believed)
-    by_type: dict[int, list[int]] = {}
-    for i, (k, _, _, msg_id, _, _) in enumerate(believed):
-        if msg_id in _COLUMNAR:
-            if msg_id in decoders[k]._unread:
-                slots[i] = None
-            else:
-                by_type.setdefault(msg_id, []).append(i)
+    per_decoder: list[list[object]],
+) -> None:
+    """The believed frames of the column-wise types, (decoder, place, frame) per message id: each decoder's
+    clock samples noted, then each frame's `Row` (or None: no reading) put in its place in per_decoder."""
     records_of: dict[int, np.ndarray] = {}
     boot_times: dict[int, list[float]] = {}  # per decoder, its messages' times of sending (`feed`'s clock samples)
-    for msg_id, members in by_type.items():
+    for msg_id, members in column_wise.items():
         dtype = _DTYPES[msg_id]
         size = dtype.itemsize
-        payloads = []
-        for i in members:
-            k, start, length, _, _, _ = believed[i]
-            payloads.append(chunks[k][start + V2_HEADER_LEN : start + length - _CRC_LEN][:size].ljust(size, b"\0"))
+        payloads = [
+            chunks[k][start + V2_HEADER_LEN : start + length - _CRC_LEN][:size].ljust(size, b"\0")
+            for k, _, (_, start, length, _, _, _) in members
+        ]
         records = records_of[msg_id] = np.frombuffer(b"".join(payloads), dtype=dtype)
         if msg_id in SENT_TIME_FIELDS:
             field_name, unit = SENT_TIME_FIELDS[msg_id]
-            for i, boot_s in zip(members, (records[field_name] * unit).tolist(), strict=True):
-                boot_times.setdefault(believed[i][0], []).append(boot_s)
+            for (k, _, _), boot_s in zip(members, (records[field_name] * unit).tolist(), strict=True):
+                boot_times.setdefault(k, []).append(boot_s)
     for k, boot_s in boot_times.items():
         decoders[k].note_boot_times(boot_s, times[k])
-    for msg_id, members in by_type.items():
+    for msg_id, members in column_wise.items():
         records = records_of[msg_id]
-        owners = [believed[i][0] for i in members]
+        owners = [k for k, _, _ in members]
         agents = np.array([decoders[k].agent for k in owners], dtype=np.intp)
         if msg_id in SENT_TIME_FIELDS:  # dated when sent (`TelemetryDecoder.sent_time`), each row as `feed` does
             stamps = zip(owners, records[SENT_TIME_FIELDS[msg_id][0]].tolist(), strict=True)
@@ -231,9 +315,8 @@ def _decode_columnar(
         else:
             t_s = np.array([times[k] for k in owners], dtype=np.float64)
         rows = _COLUMN_CONVERTERS[msg_id](records, agents, t_s, [decoders[k] for k in owners], columns)
-        for i, row in zip(members, rows, strict=True):
-            slots[i] = row
-    return slots
+        for (k, place, _), row in zip(members, rows, strict=True):
+            per_decoder[k][place] = row
 
 
 def _place(rows: list[object], where: np.ndarray, placed: list[Row]) -> None:

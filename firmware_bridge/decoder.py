@@ -30,7 +30,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -127,6 +127,16 @@ class Heartbeat:
     custom_mode: int
     system_status: int
     armed: bool
+
+
+def heartbeat_reading(
+    t_s: float, system: int, component: int, mav_type: int, autopilot: int, base_mode: int, custom_mode: int,
+    system_status: int,
+) -> Heartbeat:  # fmt: skip
+    """The reading of a HEARTBEAT with these fields from system, component, arrived at t_s (a function of the fields
+    alone, so that the batch decoder can read them without a message object)."""
+    armed = bool(base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+    return Heartbeat(t_s, system, component, mav_type, autopilot, base_mode, custom_mode, system_status, armed)
 
 
 @dataclass(frozen=True)
@@ -515,31 +525,34 @@ class TelemetryDecoder:
         return LightReading(agents, times, np.array([side], dtype=np.intp), np.array([float(msg.value)]))
 
     def _sys_status(self, msg, t_s: float) -> Battery:
-        voltage = math.nan if msg.voltage_battery == UINT16_MAX else msg.voltage_battery / 1000.0
-        remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
+        return self.sys_status_battery(msg.voltage_battery, msg.battery_remaining, t_s)
+
+    def sys_status_battery(self, voltage_battery: int, battery_remaining: int, t_s: float) -> Battery:
+        """The reading of a SYS_STATUS with these fields (mV, %), arrived at t_s; a function of the fields alone,
+        so that the batch decoder can read them without a message object."""
+        voltage = math.nan if voltage_battery == UINT16_MAX else voltage_battery / 1000.0
+        remaining = math.nan if battery_remaining < 0 else float(battery_remaining)
         agents, times = self._rows(t_s)
         return Battery(agents, times, np.array([voltage]), np.array([remaining]))
 
     def _battery_status(self, msg, t_s: float) -> Battery:
-        cells = [v for v in msg.voltages if v != UINT16_MAX]
-        cells += [v for v in getattr(msg, "voltages_ext", ()) if v not in (0, UINT16_MAX)]
+        return self.battery_status_battery(msg.voltages, getattr(msg, "voltages_ext", ()), msg.battery_remaining, t_s)
+
+    def battery_status_battery(
+        self, voltages: Sequence[int], voltages_ext: Sequence[int], battery_remaining: int, t_s: float
+    ) -> Battery:
+        """The reading of a BATTERY_STATUS with these fields (cells in mV, %), arrived at t_s (as
+        `sys_status_battery`)."""
+        cells = [v for v in voltages if v != UINT16_MAX]
+        cells += [v for v in voltages_ext if v not in (0, UINT16_MAX)]
         voltage = sum(cells) / 1000.0 if cells else math.nan
-        remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
+        remaining = math.nan if battery_remaining < 0 else float(battery_remaining)
         agents, times = self._rows(t_s)
         return Battery(agents, times, np.array([voltage]), np.array([remaining]))
 
     def _heartbeat(self, msg, t_s: float) -> Heartbeat:
-        return Heartbeat(
-            t_s=t_s,
-            system=msg.get_srcSystem(),
-            component=msg.get_srcComponent(),
-            mav_type=msg.type,
-            autopilot=msg.autopilot,
-            base_mode=msg.base_mode,
-            custom_mode=msg.custom_mode,
-            system_status=msg.system_status,
-            armed=bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
-        )
+        fields = (msg.type, msg.autopilot, msg.base_mode, msg.custom_mode, msg.system_status)
+        return heartbeat_reading(t_s, msg.get_srcSystem(), msg.get_srcComponent(), *fields)
 
     def _command_ack(self, msg, t_s: float) -> CommandAck:
         return CommandAck(t_s=t_s, command=msg.command, result=msg.result)
