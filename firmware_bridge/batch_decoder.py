@@ -6,7 +6,10 @@ stack's time. Here every vessel's bytes are framed and checked as before (one
 checksum per frame), then the frames of each high-volume type (GPS_RAW_INT,
 GLOBAL_POSITION_INT, ATTITUDE, SCALED_IMU, RAW_IMU) are unpacked for all vessels
 in one numpy call and converted column-wise, and a reading is only built when
-rows of one kind are handed over together (`Columns.take`).
+rows of one kind are handed over together (`Columns.take`). SYS_STATUS and
+BATTERY_STATUS are unpacked and converted column-wise too, each row its own
+`Battery` (a link keeps the latest); HEARTBEAT is read from its payload's fields
+without a pymavlink message object; other types as `feed` reads them.
 
 What it guarantees: for well-formed input (every chunk a run of whole, unsigned
 MAVLink 2 frames of known ids with good checksums, nothing pending in any
@@ -36,6 +39,7 @@ from firmware_bridge.decoder import (
     SENT_TIME_FIELDS,
     STANDARD_GRAVITY_MPS2,
     UINT16_MAX,
+    Battery,
     TelemetryDecoder,
     heartbeat_reading,
     sent_stamp_us,
@@ -49,12 +53,13 @@ _CRC_LEN = 2
 
 
 def _wire_dtype(message_class: type) -> np.dtype:
-    """A flat message's payload as a numpy record, fields named and ordered as on the wire."""
+    """A message's payload as a numpy record, fields named and ordered as on the wire (a numeric array as a
+    sub-array)."""
     codes = re.findall(r"(\d*)([A-Za-z])", message_class.unpacker.format.lstrip("<"))
-    if any(count for count, _ in codes) or len(codes) != len(message_class.ordered_fieldnames):
-        raise ValueError(f"{message_class.msgname}: only flat layouts are decoded column-wise")
-    return np.dtype([(name, _STRUCT_TO_NUMPY[code]) for name, (_, code) in
-                     zip(message_class.ordered_fieldnames, codes, strict=True)])  # fmt: skip
+    if "s" in (code for _, code in codes) or len(codes) != len(message_class.ordered_fieldnames):
+        raise ValueError(f"{message_class.msgname}: only numeric layouts are decoded column-wise")
+    return np.dtype([(name, _STRUCT_TO_NUMPY[code], (int(count),)) if count else (name, _STRUCT_TO_NUMPY[code])
+                     for name, (count, code) in zip(message_class.ordered_fieldnames, codes, strict=True)])  # fmt: skip
 
 
 class Row(NamedTuple):
@@ -224,19 +229,9 @@ class _FieldReader:
         return self._get(self.struct.unpack(payload[:size].ljust(size, b"\0")))
 
 
-_SYS_STATUS = _FieldReader(mavlink.MAVLink_sys_status_message, "voltage_battery", "battery_remaining")
-_BATTERY_STATUS = _FieldReader(mavlink.MAVLink_battery_status_message, "voltages", "voltages_ext", "battery_remaining")
 _HEARTBEAT = _FieldReader(
     mavlink.MAVLink_heartbeat_message, "type", "autopilot", "base_mode", "custom_mode", "system_status"
 )
-
-
-def _sys_status(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: float) -> object:
-    return decoder.sys_status_battery(*_SYS_STATUS(payload), t_s)
-
-
-def _battery_status(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: float) -> object:
-    return decoder.battery_status_battery(*_BATTERY_STATUS(payload), t_s)
 
 
 def _heartbeat(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: float) -> object:
@@ -244,12 +239,8 @@ def _heartbeat(decoder: TelemetryDecoder, payload: bytes, frame: _Frame, t_s: fl
 
 
 # The types a vehicle sends that `TelemetryDecoder` reads one at a time, read from their fields alone (the same
-# arithmetic: the decoder's converters call the same functions of the fields).
-_FIELD_READERS = {
-    mavlink.MAVLINK_MSG_ID_SYS_STATUS: _sys_status,
-    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: _battery_status,
-    mavlink.MAVLINK_MSG_ID_HEARTBEAT: _heartbeat,
-}
+# arithmetic: the decoder's converter calls the same function of the fields).
+_FIELD_READERS = {mavlink.MAVLINK_MSG_ID_HEARTBEAT: _heartbeat}
 
 
 def _decode_one(decoder: TelemetryDecoder, chunk: bytes, frame: _Frame, t_s: float) -> object:
@@ -310,8 +301,9 @@ def _decode_columnar(
         owners = [k for k, _, _ in members]
         agents = np.array([decoders[k].agent for k in owners], dtype=np.intp)
         if msg_id in SENT_TIME_FIELDS:  # dated when sent (`TelemetryDecoder.sent_time`), each row as `feed` does
-            stamps = zip(owners, records[SENT_TIME_FIELDS[msg_id][0]].tolist(), strict=True)
-            t_s = np.array([decoders[k].sent_time(sent_stamp_us(msg_id, stamp), times[k]) for k, stamp in stamps])
+            stamps = records[SENT_TIME_FIELDS[msg_id][0]].astype(np.int64) * sent_stamp_us(msg_id, 1)  # exact: us
+            sent = zip(owners, stamps.tolist(), strict=True)
+            t_s = np.array([decoders[k].sent_time(stamp_us, times[k]) for k, stamp_us in sent])
         else:
             t_s = np.array([times[k] for k in owners], dtype=np.float64)
         rows = _COLUMN_CONVERTERS[msg_id](records, agents, t_s, [decoders[k] for k in owners], columns)
@@ -405,7 +397,36 @@ def _imu(records, agents, t_s, decoders, columns: Columns) -> list[object]:
                        accel_z_mps2=-records["zacc"].astype(np.int64) * g, gyro_xy_radps=gyro_xy)  # fmt: skip
 
 
+def _sys_status(records, agents, t_s, decoders, columns: Columns) -> list[object]:
+    """TelemetryDecoder.sys_status_battery, per row: voltage V from mV, remaining %; NaN where unknown."""
+    raw = records["voltage_battery"]
+    voltage = np.where(raw == UINT16_MAX, np.nan, raw / 1000.0)
+    return _batteries(agents, t_s, voltage, records["battery_remaining"])
+
+
+def _battery_status(records, agents, t_s, decoders, columns: Columns) -> list[object]:
+    """TelemetryDecoder.battery_status_battery, per row: the sum of the reported cells (V; the sum in integers,
+    as the decoder's), NaN when none is."""
+    cells = records["voltages"].astype(np.int64)
+    extra = records["voltages_ext"].astype(np.int64)
+    reported = cells != UINT16_MAX
+    reported_extra = (extra != 0) & (extra != UINT16_MAX)
+    total = (cells * reported).sum(axis=1) + (extra * reported_extra).sum(axis=1)
+    counted = reported.any(axis=1) | reported_extra.any(axis=1)
+    return _batteries(agents, t_s, np.where(counted, total / 1000.0, np.nan), records["battery_remaining"])
+
+
+def _batteries(agents, t_s, voltage, remaining_pct) -> list[object]:
+    """One `Battery` per row, its arrays one-row views of the columns (a link keeps the latest)."""
+    remaining = np.where(remaining_pct < 0, np.nan, remaining_pct.astype(np.float64))
+    return [
+        Battery(agents[j : j + 1], t_s[j : j + 1], voltage[j : j + 1], remaining[j : j + 1]) for j in range(len(agents))
+    ]
+
+
 _COLUMN_CONVERTERS = {
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: _sys_status,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: _battery_status,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: _gps_raw_int,
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _global_position_int,
     mavlink.MAVLINK_MSG_ID_ATTITUDE: _attitude,

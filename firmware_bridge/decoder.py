@@ -30,7 +30,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -525,28 +525,16 @@ class TelemetryDecoder:
         return LightReading(agents, times, np.array([side], dtype=np.intp), np.array([float(msg.value)]))
 
     def _sys_status(self, msg, t_s: float) -> Battery:
-        return self.sys_status_battery(msg.voltage_battery, msg.battery_remaining, t_s)
-
-    def sys_status_battery(self, voltage_battery: int, battery_remaining: int, t_s: float) -> Battery:
-        """The reading of a SYS_STATUS with these fields (mV, %), arrived at t_s; a function of the fields alone,
-        so that the batch decoder can read them without a message object."""
-        voltage = math.nan if voltage_battery == UINT16_MAX else voltage_battery / 1000.0
-        remaining = math.nan if battery_remaining < 0 else float(battery_remaining)
+        voltage = math.nan if msg.voltage_battery == UINT16_MAX else msg.voltage_battery / 1000.0
+        remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
         agents, times = self._rows(t_s)
         return Battery(agents, times, np.array([voltage]), np.array([remaining]))
 
     def _battery_status(self, msg, t_s: float) -> Battery:
-        return self.battery_status_battery(msg.voltages, getattr(msg, "voltages_ext", ()), msg.battery_remaining, t_s)
-
-    def battery_status_battery(
-        self, voltages: Sequence[int], voltages_ext: Sequence[int], battery_remaining: int, t_s: float
-    ) -> Battery:
-        """The reading of a BATTERY_STATUS with these fields (cells in mV, %), arrived at t_s (as
-        `sys_status_battery`)."""
-        cells = [v for v in voltages if v != UINT16_MAX]
-        cells += [v for v in voltages_ext if v not in (0, UINT16_MAX)]
+        cells = [v for v in msg.voltages if v != UINT16_MAX]
+        cells += [v for v in getattr(msg, "voltages_ext", ()) if v not in (0, UINT16_MAX)]
         voltage = sum(cells) / 1000.0 if cells else math.nan
-        remaining = math.nan if battery_remaining < 0 else float(battery_remaining)
+        remaining = math.nan if msg.battery_remaining < 0 else float(msg.battery_remaining)
         agents, times = self._rows(t_s)
         return Battery(agents, times, np.array([voltage]), np.array([remaining]))
 

@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from bob_autonomy.onboard.vehicle_link import VehicleLink, receive_all
 from firmware_bridge.batch_decoder import Row, decode_batch
-from firmware_bridge.decoder import TelemetryDecoder, heading_from_yaw
+from firmware_bridge.decoder import UINT16_MAX, TelemetryDecoder, heading_from_yaw
 from firmware_bridge.readings import GpsFix
 from firmware_bridge.telemetry import TelemetryEncoder
 from sitl.vehicles.reading_batches import merge_by_round
@@ -125,6 +125,47 @@ def test_batch_decoding_gives_feeds_counters_and_readings_bit_for_bit(seed: int)
     merged = merge_by_round(got, columns)
     assert len(merged) == len(merged_expected)
     assert all(_same(a, b) for a, b in zip(merged_expected, merged, strict=True))
+
+
+def _random_housekeeping(rng: np.random.Generator, encoder: TelemetryEncoder, count: int) -> bytes:
+    """`count` HEARTBEAT, SYS_STATUS and BATTERY_STATUS frames with raw field values drawn over their whole ranges
+    and their edges (unknown voltages and charge, no cells, extension cells), which the batch decoder reads from
+    their payloads without a message object."""
+    out = bytearray()
+
+    def cell() -> int:
+        return int(rng.choice([0, UINT16_MAX, int(rng.integers(UINT16_MAX))]))
+
+    for _ in range(count):
+        kind = rng.integers(3)
+        remaining = int(rng.choice([-1, -128, 0, 100, int(rng.integers(-128, 128))]))
+        if kind == 0:
+            fields = [int(v) for v in rng.integers(0, 256, 5)]
+            fields[3] = int(rng.integers(2**32))  # custom_mode
+            out += encoder.encoder.frame(mavlink.MAVLink_heartbeat_message, *fields)
+        elif kind == 1:
+            out += encoder.encoder.frame(mavlink.MAVLink_sys_status_message, 1, 2, 3, 0, cell(), -1, remaining, 0, 0,
+                                         0, 0, 0, 0)  # fmt: skip
+        else:
+            cells = [cell() for _ in range(10)] if rng.random() < 0.7 else [UINT16_MAX] * 10
+            ext = [cell() for _ in range(4)] if rng.random() < 0.3 else [0] * 4
+            out += encoder.encoder.frame(mavlink.MAVLink_battery_status_message, 0, 0, 0, 32767, cells, -1, -1, -1,
+                                         remaining, 0, 0, ext, 0, 0)  # fmt: skip
+    return bytes(out)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_housekeeping_read_from_payloads_is_feeds_bit_for_bit(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    one_by_one, batched, _ = _fleet(rng, 9)
+    chunks = [_random_housekeeping(rng, TelemetryEncoder(k + 1 if rng.random() < 0.9 else 40), 30) for k in range(9)]
+    expected = [d.feed(chunk) for d, chunk in zip(one_by_one, chunks, strict=True)]
+    got, _ = decode_batch(batched, chunks)
+    for want, have in zip(expected, got, strict=True):
+        assert len(want) == len(have) and not any(isinstance(r, Row) for r in have)
+        assert all(_same(a, b) for a, b in zip(want, have, strict=True))
+    for a, b in zip(one_by_one, batched, strict=True):
+        assert vars(a.counters) == vars(b.counters)
 
 
 def test_every_column_wise_kind_is_exercised() -> None:
