@@ -274,90 +274,139 @@ class BuoyDynamics:
         torque_noise = p.yaw_torque_std_nm * math.sqrt(max(0.0, 1.0 - decay * decay))
         self.yaw_torque_nm = self.yaw_torque_nm * decay + torque_noise * self.rng.standard_normal(n)
 
+        # The active rows: a view of every row when all are active (the usual case), else a copy of some.
         act = self.active
-        x, v = self.position_m[act], self.velocity_mps[act]
-        heading, rate = self.heading_rad[act], self.yaw_rate_radps[act]
-        nozzle, target, mag = self.thrust_angle_body_rad[act], cmd_angle[act], thrust_mag[act]
-        u, w, torque = water[act], wind[act], self.yaw_torque_nm[act]
-        v_start = v.copy()
-        thrust = np.zeros_like(v)
-
+        every = bool(act.all())
+        rows = slice(None) if every else act
         substeps = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
         h = dt_s / substeps
-        yaw_rate_decay = p.yaw_damping_nms_per_rad / p.yaw_inertia_kgm2 * h
-        # The yaw integrator's factors depend on h alone: one value, broadcast over the buoys at each substep.
-        yaw_phi1, yaw_phi2 = _phi1(np.full(1, yaw_rate_decay)), _phi2(np.full(1, yaw_rate_decay))
-        slew = p.thrust_slew_radps * h
-        for _ in range(substeps):
-            turn = wrap_angle(target - nozzle)
-            nozzle = nozzle + np.minimum(np.maximum(turn, -slew), slew)
-            world_angle = heading + nozzle
-            direction = np.empty_like(v)
-            direction[:, 0], direction[:, 1] = np.cos(world_angle), np.sin(world_angle)
-            thrust = mag[:, None] * direction
+        nozzle, world_angles, heading, rate = self._turn(
+            self.thrust_angle_body_rad[rows], cmd_angle[rows], self.heading_rad[rows], self.yaw_rate_radps[rows],
+            self.yaw_torque_nm[rows], substeps, h,
+        )  # fmt: skip
+        # The thrust over ground at every substep, (substeps, 2, M) N: the nozzle direction does not depend on the
+        # translation, so the trigonometry is done once for all substeps.
+        thrusts = thrust_mag[rows] * np.stack((np.cos(world_angles), np.sin(world_angles)), axis=1)
+        # Vectors are (2, M) (x row, y row) in the substep loop, so that the per-buoy coefficients broadcast.
+        x_start, v_start = self.position_m[rows].T, self.velocity_mps[rows].T
+        x, v = self._translate(x_start, v_start, thrusts, water[rows].T, wind[rows].T, h)
 
-            # Predictor with the coefficients at the start, corrector at the midpoint.
-            accel, h_over_tau = self._acceleration(v, thrust, u, w, h, self._coefficients(v, u, w))
-            dv_pred = accel * (h * _phi1(h_over_tau))[:, None]  # (the predictor needs no displacement)
-            dv, dx = self._translate(v, thrust, u, w, h, self._coefficients(v + 0.5 * dv_pred, u, w))
-            x, v = x + dx, v + dv
-
-            yaw_accel = (torque - p.yaw_damping_nms_per_rad * rate) / p.yaw_inertia_kgm2
-            heading = heading + h * (rate + yaw_accel * h * yaw_phi2)
-            rate = rate + yaw_accel * h * yaw_phi1
-
-        self.position_m[act], self.velocity_mps[act] = x, v
-        self.heading_rad[act], self.yaw_rate_radps[act] = wrap_angle(heading), rate
-        self.thrust_angle_body_rad[act] = wrap_angle(nozzle)
-        self.thrust_n[act] = thrust
+        accel = (v - v_start) / dt_s  # before the write-back: v_start may be a view of velocity_mps
+        self.position_m[rows], self.velocity_mps[rows] = x.T, v.T
+        self.heading_rad[rows], self.yaw_rate_radps[rows] = wrap_angle(heading), rate
+        self.thrust_angle_body_rad[rows] = wrap_angle(nozzle)
+        self.thrust_n[rows] = thrusts[-1].T
         self.acceleration_mps2 = np.zeros((n, 2))
-        self.acceleration_mps2[act] = (v - v_start) / dt_s
-        idle = ~act
-        self.velocity_mps[idle] = 0.0
-        self.yaw_rate_radps[idle] = 0.0
-        self.thrust_n[idle] = 0.0
+        self.acceleration_mps2[rows] = accel.T
+        if not every:
+            idle = ~act
+            self.velocity_mps[idle] = 0.0
+            self.yaw_rate_radps[idle] = 0.0
+            self.thrust_n[idle] = 0.0
         return self.acceleration_mps2.copy()
 
-    def _coefficients(self, v: FloatArray, water: FloatArray, wind: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Water and air drag coefficients (N per m/s), each (M,), at velocity v (M, 2) m/s."""
+    def _turn(
+        self,
+        nozzle: FloatArray,
+        target: FloatArray,
+        heading: FloatArray,
+        rate: FloatArray,
+        torque: FloatArray,
+        substeps: int,
+        h: float,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Slew the nozzles (M,) rad towards target and integrate the yaw over `substeps` substeps of h s.
+
+        Returns the final nozzle angles (M,) rad (unwrapped), the world thrust angle heading + nozzle at each
+        substep (substeps, M) rad (the heading at the start of the substep, the nozzle after its slew), and the
+        final heading (M,) rad (unwrapped) and yaw rate (M,) rad/s.
+        """
         p = self.params
-        water_coef = p.linear_drag_n_per_mps + p.quadratic_drag_n_per_mps2 * _norm(v - water)
-        air_coef = p.air_drag_n_per_mps2 * _norm(wind - v)
-        return water_coef, air_coef
+        slew = p.thrust_slew_radps * h
+        damping, inertia = p.yaw_damping_nms_per_rad, p.yaw_inertia_kgm2
+        # The yaw integrator's factors depend on h alone (exact exponential integrator of I r' = -c r + tau).
+        yaw_rate_decay = np.full(1, damping / inertia * h)
+        yaw_phi1, yaw_phi2 = _phi1(yaw_rate_decay).reshape(()), _phi2(yaw_rate_decay).reshape(())
+        pi, two_pi, slew, neg_slew, damping, inertia, h = _constants(
+            np.pi, 2.0 * np.pi, slew, -slew, damping, inertia, h
+        )
+        m = nozzle.shape[0]
+        nozzles, changes = np.empty((substeps, m)), np.empty((substeps, m))
+        rates = np.empty((substeps + 1, m))
+        rates[0] = rate
+        for k in range(substeps):
+            turn = pi - np.mod(pi - (target - nozzle), two_pi)  # wrap_angle(target - nozzle)
+            nozzle = np.add(nozzle, np.minimum(np.maximum(turn, neg_slew), slew), out=nozzles[k])
+            # The yaw acceleration times h (rad/s), then the rate at the end of the substep.
+            change = np.multiply((torque - damping * rate) / inertia, h, out=changes[k])
+            rate = np.add(rate, change * yaw_phi1, out=rates[k + 1])
+        # The heading does not feed back: its increments h (r + change phi2) for all substeps at once, summed in
+        # order (np.add.accumulate adds row after row, as the substeps would).
+        headings = np.empty((substeps + 1, m))
+        headings[0] = heading
+        np.multiply(h, rates[:-1] + changes * yaw_phi2, out=headings[1:])
+        headings = np.add.accumulate(headings, axis=0)
+        world_angles = headings[:-1] + nozzles  # the heading at the start of each substep, the slewed nozzle
+        heading = headings[-1]
+        return nozzle, world_angles, heading, rate
 
     def _translate(
-        self,
-        v: FloatArray,
-        thrust: FloatArray,
-        water: FloatArray,
-        wind: FloatArray,
-        h: float,
-        coefficients: tuple[FloatArray, FloatArray],
+        self, x: FloatArray, v: FloatArray, thrusts: FloatArray, water: FloatArray, wind: FloatArray, h: float
     ) -> tuple[FloatArray, FloatArray]:
-        """Exact solution over h s of M v' = T + Dw (u - v) + Da (w - v) with frozen Dw, Da.
+        """Integrate M v' = T + Dw (u - v) + Da (w - v), x' = v over the substeps of h s; return x and v (2, M).
 
-        Returns the velocity change (M, 2) m/s and the displacement (M, 2) m.
+        x, v: (2, M) position m and velocity m/s; thrusts: (substeps, 2, M) N; water, wind: (2, M) m/s. Each
+        substep: a predictor with the drag coefficients frozen at v gives the midpoint velocity, then the exact
+        solution with the coefficients frozen there.
         """
-        accel, rate = self._acceleration(v, thrust, water, wind, h, coefficients)
-        dv = accel * (h * _phi1(rate))[:, None]
-        dx = h * v + accel * (h * h * _phi2(rate))[:, None]
-        return dv, dx
+        p = self.params
+        c1, c2, ka = p.linear_drag_n_per_mps, p.quadratic_drag_n_per_mps2, p.air_drag_n_per_mps2
+        mass = p.effective_mass_kg
+        # Every h / time constant is at least c1 / M h (the coefficients are c1 + c2 |.| >= c1 and ka |.| >= 0,
+        # and rounding is monotonic): above the _phi1 / _phi2 series thresholds their closed forms apply to all.
+        closed = c1 / mass * h >= 1e-3
+        mass, h, h2, half = _constants(mass, h, h * h, 0.5)
+        flow = np.stack((water, wind))  # (2, 2, M): the surface water and the wind, m/s
+        # Drag coefficients = scale |flow - v| + offset: c1 + c2 |u - v| for the water, ka |w - v| (+ 0) for the air.
+        scale, offset = np.array([[c2], [ka]]), np.array([[c1], [0.0]])
+        for thrust in thrusts:
+            relative = flow - v  # both frozen-coefficient solutions start from v
+            coefficients = scale * np.hypot(relative[:, 0], relative[:, 1]) + offset
+            accel, rate = _acceleration(thrust, relative, coefficients, mass, h)
+            phi1 = -np.expm1(-rate) / rate if closed else _phi1(rate)
+            dv_pred = accel * (h * phi1)  # (the predictor needs no displacement)
+            mid = flow - (v + half * dv_pred)  # the flow relative to the midpoint velocity
+            coefficients = scale * np.hypot(mid[:, 0], mid[:, 1]) + offset
+            accel, rate = _acceleration(thrust, relative, coefficients, mass, h)
+            if closed:
+                decay = np.expm1(-rate)
+                phi1, phi2 = -decay / rate, (rate + decay) / (rate * rate)
+            else:
+                phi1, phi2 = _phi1(rate), _phi2(rate)
+            dv = accel * (h * phi1)
+            dx = h * v + accel * (h2 * phi2)
+            x, v = x + dx, v + dv
+        return x, v
 
-    def _acceleration(
-        self,
-        v: FloatArray,
-        thrust: FloatArray,
-        water: FloatArray,
-        wind: FloatArray,
-        h: float,
-        coefficients: tuple[FloatArray, FloatArray],
-    ) -> tuple[FloatArray, FloatArray]:
-        """The acceleration (M, 2) m/s^2 at v with frozen drag, and h over each drag time constant (M,)."""
-        water_coef, air_coef = coefficients
-        mass = self.params.effective_mass_kg
-        force = thrust + water_coef[:, None] * (water - v) + air_coef[:, None] * (wind - v)
-        rate = (water_coef + air_coef) / mass * h  # dimensionless: h / time constant
-        return force / mass, rate
+
+def _constants(*values: float) -> tuple[FloatArray, ...]:
+    """The values as 0-d float64 arrays: numpy combines an array with a 0-d array faster than with a Python float
+    (no conversion at each call), and with the same float64 arithmetic."""
+    return tuple(np.array(value, dtype=float) for value in values)
+
+
+def _acceleration(
+    thrust: FloatArray, relative: FloatArray, coefficients: FloatArray, mass: float, h: float
+) -> tuple[FloatArray, FloatArray]:
+    """The acceleration (2, M) m/s^2 with frozen drag, and h over each drag time constant (M,).
+
+    thrust: (2, M) N; relative: (2, 2, M) the water and the wind relative to the hull, m/s; coefficients:
+    (2, M) the water and air drag coefficients, N per m/s; mass in kg, h in s.
+    """
+    terms = coefficients[:, None] * relative  # the water drag and the windage, N
+    force = thrust + terms[0] + terms[1]
+    rate = (coefficients[0] + coefficients[1]) / mass * h  # dimensionless: h / time constant
+    return force / mass, rate
 
 
 # --------------------------------------------------------------------------- eBot
