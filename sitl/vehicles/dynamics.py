@@ -48,8 +48,10 @@ left. All randomness comes from the numpy Generator passed in.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -261,8 +263,9 @@ class BuoyDynamics:
         cmd = np.asarray(thrust_cmd_body_n, dtype=float).reshape(n, 2)
         wind = np.zeros((n, 2)) if wind_mps is None else np.asarray(wind_mps, dtype=float).reshape(n, 2)
         current = np.zeros((n, 2)) if current_mps is None else np.asarray(current_mps, dtype=float).reshape(n, 2)
-        limit = p.max_thrust_n if max_thrust_n is None else max_thrust_n
-        limit = np.broadcast_to(np.asarray(limit, dtype=float), (n,))
+        limit = np.asarray(p.max_thrust_n if max_thrust_n is None else max_thrust_n, dtype=float)
+        if limit.shape != (n,):
+            limit = np.broadcast_to(limit, (n,))
 
         cmd_mag = _norm(cmd)
         thrust_mag = np.minimum(cmd_mag, np.maximum(limit, 0.0))
@@ -278,18 +281,22 @@ class BuoyDynamics:
         act = self.active
         every = bool(act.all())
         rows = slice(None) if every else act
-        substeps = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
-        h = dt_s / substeps
-        nozzle, world_angles, heading, rate = self._turn(
+        c = _substeps(p, dt_s)
+        nozzle, world_angles, heading, rate = _turn(
             self.thrust_angle_body_rad[rows], cmd_angle[rows], self.heading_rad[rows], self.yaw_rate_radps[rows],
-            self.yaw_torque_nm[rows], substeps, h,
+            self.yaw_torque_nm[rows], c,
         )  # fmt: skip
         # The thrust over ground at every substep, (substeps, 2, M) N: the nozzle direction does not depend on the
         # translation, so the trigonometry is done once for all substeps.
-        thrusts = thrust_mag[rows] * np.stack((np.cos(world_angles), np.sin(world_angles)), axis=1)
+        thrusts = np.empty((c.count, 2, world_angles.shape[1]))
+        np.cos(world_angles, out=thrusts[:, 0])
+        np.sin(world_angles, out=thrusts[:, 1])
+        np.multiply(thrust_mag[rows], thrusts, out=thrusts)
         # Vectors are (2, M) (x row, y row) in the substep loop, so that the per-buoy coefficients broadcast.
         x_start, v_start = self.position_m[rows].T, self.velocity_mps[rows].T
-        x, v = self._translate(x_start, v_start, thrusts, water[rows].T, wind[rows].T, h)
+        flow = np.empty((2, *v_start.shape))  # the surface water and the wind, m/s
+        flow[0], flow[1] = water[rows].T, wind[rows].T
+        x, v = _translate(x_start, v_start, thrusts, flow, c)
 
         accel = (v - v_start) / dt_s  # before the write-back: v_start may be a view of velocity_mps
         self.position_m[rows], self.velocity_mps[rows] = x.T, v.T
@@ -305,94 +312,121 @@ class BuoyDynamics:
             self.thrust_n[idle] = 0.0
         return self.acceleration_mps2.copy()
 
-    def _turn(
-        self,
-        nozzle: FloatArray,
-        target: FloatArray,
-        heading: FloatArray,
-        rate: FloatArray,
-        torque: FloatArray,
-        substeps: int,
-        h: float,
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Slew the nozzles (M,) rad towards target and integrate the yaw over `substeps` substeps of h s.
 
-        Returns the final nozzle angles (M,) rad (unwrapped), the world thrust angle heading + nozzle at each
-        substep (substeps, M) rad (the heading at the start of the substep, the nozzle after its slew), and the
-        final heading (M,) rad (unwrapped) and yaw rate (M,) rad/s.
-        """
-        p = self.params
-        slew = p.thrust_slew_radps * h
-        damping, inertia = p.yaw_damping_nms_per_rad, p.yaw_inertia_kgm2
-        # The yaw integrator's factors depend on h alone (exact exponential integrator of I r' = -c r + tau).
-        yaw_rate_decay = np.full(1, damping / inertia * h)
-        yaw_phi1, yaw_phi2 = _phi1(yaw_rate_decay).reshape(()), _phi2(yaw_rate_decay).reshape(())
-        pi, two_pi, slew, neg_slew, damping, inertia, h = _constants(
-            np.pi, 2.0 * np.pi, slew, -slew, damping, inertia, h
-        )
-        m = nozzle.shape[0]
-        nozzles, changes = np.empty((substeps, m)), np.empty((substeps, m))
-        rates = np.empty((substeps + 1, m))
-        rates[0] = rate
-        for k in range(substeps):
-            turn = pi - np.mod(pi - (target - nozzle), two_pi)  # wrap_angle(target - nozzle)
-            nozzle = np.add(nozzle, np.minimum(np.maximum(turn, neg_slew), slew), out=nozzles[k])
-            # The yaw acceleration times h (rad/s), then the rate at the end of the substep.
-            change = np.multiply((torque - damping * rate) / inertia, h, out=changes[k])
-            rate = np.add(rate, change * yaw_phi1, out=rates[k + 1])
-        # The heading does not feed back: its increments h (r + change phi2) for all substeps at once, summed in
-        # order (np.add.accumulate adds row after row, as the substeps would).
-        headings = np.empty((substeps + 1, m))
-        headings[0] = heading
-        np.multiply(h, rates[:-1] + changes * yaw_phi2, out=headings[1:])
-        headings = np.add.accumulate(headings, axis=0)
-        world_angles = headings[:-1] + nozzles  # the heading at the start of each substep, the slewed nozzle
-        heading = headings[-1]
-        return nozzle, world_angles, heading, rate
+class _Substeps(NamedTuple):
+    """What a buoy step needs that depends on the parameters and the step length alone.
 
-    def _translate(
-        self, x: FloatArray, v: FloatArray, thrusts: FloatArray, water: FloatArray, wind: FloatArray, h: float
-    ) -> tuple[FloatArray, FloatArray]:
-        """Integrate M v' = T + Dw (u - v) + Da (w - v), x' = v over the substeps of h s; return x and v (2, M).
+    The factors are read-only 0-d float64 arrays: numpy combines an array with one faster than with a Python float
+    (no conversion at each call), with the same float64 arithmetic.
+    """
 
-        x, v: (2, M) position m and velocity m/s; thrusts: (substeps, 2, M) N; water, wind: (2, M) m/s. Each
-        substep: a predictor with the drag coefficients frozen at v gives the midpoint velocity, then the exact
-        solution with the coefficients frozen there.
-        """
-        p = self.params
-        c1, c2, ka = p.linear_drag_n_per_mps, p.quadratic_drag_n_per_mps2, p.air_drag_n_per_mps2
-        mass = p.effective_mass_kg
-        # Every h / time constant is at least c1 / M h (the coefficients are c1 + c2 |.| >= c1 and ka |.| >= 0,
-        # and rounding is monotonic): above the _phi1 / _phi2 series thresholds their closed forms apply to all.
-        closed = c1 / mass * h >= 1e-3
-        mass, h, h2, half = _constants(mass, h, h * h, 0.5)
-        flow = np.stack((water, wind))  # (2, 2, M): the surface water and the wind, m/s
-        # Drag coefficients = scale |flow - v| + offset: c1 + c2 |u - v| for the water, ka |w - v| (+ 0) for the air.
-        scale, offset = np.array([[c2], [ka]]), np.array([[c1], [0.0]])
-        for thrust in thrusts:
-            relative = flow - v  # both frozen-coefficient solutions start from v
-            coefficients = scale * np.hypot(relative[:, 0], relative[:, 1]) + offset
-            accel, rate = _acceleration(thrust, relative, coefficients, mass, h)
-            phi1 = -np.expm1(-rate) / rate if closed else _phi1(rate)
-            dv_pred = accel * (h * phi1)  # (the predictor needs no displacement)
-            mid = flow - (v + half * dv_pred)  # the flow relative to the midpoint velocity
-            coefficients = scale * np.hypot(mid[:, 0], mid[:, 1]) + offset
-            accel, rate = _acceleration(thrust, relative, coefficients, mass, h)
-            if closed:
-                decay = np.expm1(-rate)
-                phi1, phi2 = -decay / rate, (rate + decay) / (rate * rate)
-            else:
-                phi1, phi2 = _phi1(rate), _phi2(rate)
-            dv = accel * (h * phi1)
-            dx = h * v + accel * (h2 * phi2)
-            x, v = x + dx, v + dv
-        return x, v
+    count: int  # substeps per step
+    h: FloatArray  # substep length, s
+    h2: FloatArray  # h^2, s^2
+    half: FloatArray  # 0.5
+    slew: FloatArray  # largest nozzle turn per substep, rad
+    neg_slew: FloatArray  # -slew, rad
+    pi: FloatArray  # pi
+    two_pi: FloatArray  # 2 pi
+    damping: FloatArray  # yaw damping, N m s/rad
+    inertia: FloatArray  # yaw inertia, kg m^2
+    yaw_phi1: FloatArray  # phi1 and phi2 of h over the yaw time constant
+    yaw_phi2: FloatArray
+    mass: FloatArray  # effective mass, kg
+    scale: FloatArray  # (2, 1) c2 and ka: drag coefficients = scale |flow - v| + offset (N per m/s)
+    offset: FloatArray  # (2, 1) c1 and 0
+    closed: bool  # every drag rate h / tau is above the _phi1 / _phi2 series thresholds
 
 
-def _constants(*values: float) -> tuple[FloatArray, ...]:
-    """The values as 0-d float64 arrays: numpy combines an array with a 0-d array faster than with a Python float
-    (no conversion at each call), and with the same float64 arithmetic."""
-    return tuple(np.array(value, dtype=float) for value in values)
+@functools.lru_cache(maxsize=32)
+def _substeps(p: BuoyParams, dt_s: float) -> _Substeps:
+    """The substeps of a buoy step of dt_s s: at most p.max_substep_s each (see _Substeps)."""
+    count = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
+    h = dt_s / count
+    slew = p.thrust_slew_radps * h
+    damping, inertia, mass = p.yaw_damping_nms_per_rad, p.yaw_inertia_kgm2, p.effective_mass_kg
+    # The yaw integrator's factors depend on h alone (exact exponential integrator of I r' = -c r + tau).
+    yaw_rate_decay = np.full(1, damping / inertia * h)
+    scale = [[p.quadratic_drag_n_per_mps2], [p.air_drag_n_per_mps2]]
+    offset = [[p.linear_drag_n_per_mps], [0.0]]  # ka |w - v| + 0 is ka |w - v|, never -0
+    factors = [np.array(value, dtype=float) for value in (h, h * h, 0.5, slew, -slew, np.pi, 2.0 * np.pi)]
+    factors += [np.array(value, dtype=float) for value in (damping, inertia)]
+    factors += [_phi1(yaw_rate_decay).reshape(()), _phi2(yaw_rate_decay).reshape(())]
+    factors += [np.array(value, dtype=float) for value in (mass, scale, offset)]
+    for factor in factors:
+        factor.setflags(write=False)  # shared by every step of this length
+    # Every h / time constant is at least c1 / M h (the coefficients are c1 + c2 |.| >= c1 and ka |.| >= 0,
+    # and rounding is monotonic): above the _phi1 / _phi2 series thresholds their closed forms apply to all.
+    closed = p.linear_drag_n_per_mps / mass * h >= 1e-3
+    return _Substeps(count, *factors, closed)
+
+
+def _turn(
+    nozzle: FloatArray, target: FloatArray, heading: FloatArray, rate: FloatArray, torque: FloatArray, c: _Substeps
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Slew the nozzles (M,) rad towards target and integrate the yaw under the torque (M,) N m over the substeps.
+
+    Returns the final nozzle angles (M,) rad (unwrapped), the world thrust angle heading + nozzle at each
+    substep (substeps, M) rad (the heading at the start of the substep, the nozzle after its slew), and the
+    final heading (M,) rad (unwrapped) and yaw rate (M,) rad/s.
+    """
+    m = nozzle.shape[0]
+    nozzles, changes = np.empty((c.count, m)), np.empty((c.count, m))
+    rates = np.empty((c.count + 1, m))
+    rates[0] = rate
+    for k in range(c.count):
+        turn = c.pi - np.mod(c.pi - (target - nozzle), c.two_pi)  # wrap_angle(target - nozzle)
+        nozzle = np.add(nozzle, np.minimum(np.maximum(turn, c.neg_slew), c.slew), out=nozzles[k])
+        # The yaw acceleration times h (rad/s), then the rate at the end of the substep.
+        change = np.multiply((torque - c.damping * rate) / c.inertia, c.h, out=changes[k])
+        rate = np.add(rate, change * c.yaw_phi1, out=rates[k + 1])
+    # The heading does not feed back: its increments h (r + change phi2) for all substeps at once, summed in
+    # order (np.add.accumulate adds row after row, as the substeps would).
+    headings = np.empty((c.count + 1, m))
+    headings[0] = heading
+    np.multiply(c.h, rates[:-1] + changes * c.yaw_phi2, out=headings[1:])
+    headings = np.add.accumulate(headings, axis=0)
+    world_angles = headings[:-1] + nozzles  # the heading at the start of each substep, the slewed nozzle
+    return nozzle, world_angles, headings[-1], rate
+
+
+def _translate(
+    x: FloatArray, v: FloatArray, thrusts: FloatArray, flow: FloatArray, c: _Substeps
+) -> tuple[FloatArray, FloatArray]:
+    """Integrate M v' = T + Dw (u - v) + Da (w - v), x' = v over the substeps; return x and v (2, M).
+
+    x, v: (2, M) position m and velocity m/s; thrusts: (substeps, 2, M) N; flow: (2, 2, M) the surface water u
+    and the wind w, m/s. Each substep: a predictor with the drag coefficients frozen at v gives the midpoint
+    velocity, then the exact solution with the coefficients frozen there.
+    """
+    h, scale, offset = c.h, c.scale, c.offset
+    velocities = np.empty((c.count + 1, *v.shape))  # v at the start of each substep, and at the end
+    velocities[0] = v
+    positions = np.empty((c.count + 1, *x.shape))  # x, then the displacement in each substep
+    drifts = positions[1:]  # first the displacement beyond h v of each substep, h v added after the loop
+    for k, thrust in enumerate(thrusts):
+        relative = flow - v  # both frozen-coefficient solutions start from v
+        coefficients = scale * np.hypot(relative[:, 0], relative[:, 1]) + offset
+        accel, rate = _acceleration(thrust, relative, coefficients, c.mass, h)
+        # (-e) / r == e / (-r): the closed forms divide by the -r they take the expm1 of.
+        neg_rate = -rate
+        phi1 = np.expm1(neg_rate) / neg_rate if c.closed else _phi1(rate)
+        dv_pred = accel * (h * phi1)  # (the predictor needs no displacement)
+        mid = flow - (v + c.half * dv_pred)  # the flow relative to the midpoint velocity
+        coefficients = scale * np.hypot(mid[:, 0], mid[:, 1]) + offset
+        accel, rate = _acceleration(thrust, relative, coefficients, c.mass, h)
+        if c.closed:
+            neg_rate = -rate
+            decay = np.expm1(neg_rate)
+            phi1, phi2 = decay / neg_rate, (rate + decay) / (rate * rate)
+        else:
+            phi1, phi2 = _phi1(rate), _phi2(rate)
+        np.multiply(accel, c.h2 * phi2, out=drifts[k])
+        v = np.add(v, accel * (h * phi1), out=velocities[k + 1])
+    # dx = h v + drift for every substep at once, then x summed over the substeps in order (row after row).
+    np.add(h * velocities[:-1], drifts, out=drifts)
+    positions[0] = x
+    return np.add.accumulate(positions, axis=0)[-1], v
 
 
 def _acceleration(
