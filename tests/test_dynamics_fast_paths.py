@@ -3,7 +3,8 @@
 The step batches the nozzle trigonometry and the heading increments over the substeps, shares the flow relative to
 the hull between the predictor and the corrector, takes the closed forms of the phi functions when every drag rate
 is known to be above their series thresholds, and works on views when every buoy is active. The reference below is
-the substep loop as it was written first: one substep after the other, on copies of the active rows.
+the substep loop as it was written first: one substep after the other, on copies of the active rows. Also
+`VehiclePhysics`' row index of a kind (a slice when the rows are contiguous) against the rows themselves.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from sitl.vehicles.dynamics import BuoyDynamics, BuoyParams, _norm, _phi1, _phi2, wrap_angle
+from sitl.vehicles.vehicle_physics import _row_index
 
 
 def _plain_step(b: BuoyDynamics, cmd, dt_s: float, wind, current, limit) -> np.ndarray:
@@ -118,3 +120,17 @@ def test_buoy_step_matches_the_plain_substep_loop_bit_for_bit(seed: int, params:
         want = _plain_step(plain, cmd, dt_s, wind, current, limit)
         assert np.array_equal(got.view(np.int64), want.view(np.int64))
         assert np.array_equal(_state(fast), _state(plain))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_vehicle_physics_row_index_selects_the_rows_of_a_kind(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    kinds = rng.integers(0, 3, rng.integers(1, 12))
+    if seed % 2:
+        kinds = np.sort(kinds)  # the usual layout: each kind in one block
+    table = rng.normal(size=(kinds.size, 2))
+    for kind in range(3):
+        rows = np.flatnonzero(kinds == kind)
+        index = _row_index(rows)
+        assert np.array_equal(table[index], table[rows])
+        assert isinstance(index, slice) == (rows.size > 0 and np.array_equal(rows, np.arange(rows[0], rows[-1] + 1)))
