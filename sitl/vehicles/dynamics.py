@@ -48,8 +48,10 @@ left. All randomness comes from the numpy Generator passed in.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -261,8 +263,9 @@ class BuoyDynamics:
         cmd = np.asarray(thrust_cmd_body_n, dtype=float).reshape(n, 2)
         wind = np.zeros((n, 2)) if wind_mps is None else np.asarray(wind_mps, dtype=float).reshape(n, 2)
         current = np.zeros((n, 2)) if current_mps is None else np.asarray(current_mps, dtype=float).reshape(n, 2)
-        limit = p.max_thrust_n if max_thrust_n is None else max_thrust_n
-        limit = np.broadcast_to(np.asarray(limit, dtype=float), (n,))
+        limit = np.asarray(p.max_thrust_n if max_thrust_n is None else max_thrust_n, dtype=float)
+        if limit.shape != (n,):
+            limit = np.broadcast_to(limit, (n,))
 
         cmd_mag = _norm(cmd)
         thrust_mag = np.minimum(cmd_mag, np.maximum(limit, 0.0))
@@ -274,90 +277,170 @@ class BuoyDynamics:
         torque_noise = p.yaw_torque_std_nm * math.sqrt(max(0.0, 1.0 - decay * decay))
         self.yaw_torque_nm = self.yaw_torque_nm * decay + torque_noise * self.rng.standard_normal(n)
 
+        # The active rows: a view of every row when all are active (the usual case), else a copy of some.
         act = self.active
-        x, v = self.position_m[act], self.velocity_mps[act]
-        heading, rate = self.heading_rad[act], self.yaw_rate_radps[act]
-        nozzle, target, mag = self.thrust_angle_body_rad[act], cmd_angle[act], thrust_mag[act]
-        u, w, torque = water[act], wind[act], self.yaw_torque_nm[act]
-        v_start = v.copy()
-        thrust = np.zeros_like(v)
+        every = bool(act.all())
+        rows = slice(None) if every else act
+        c = _substeps(p, dt_s)
+        nozzle, world_angles, heading, rate = _turn(
+            self.thrust_angle_body_rad[rows], cmd_angle[rows], self.heading_rad[rows], self.yaw_rate_radps[rows],
+            self.yaw_torque_nm[rows], c,
+        )  # fmt: skip
+        # The thrust over ground at every substep, (substeps, 2, M) N: the nozzle direction does not depend on the
+        # translation, so the trigonometry is done once for all substeps.
+        thrusts = np.empty((c.count, 2, world_angles.shape[1]))
+        np.cos(world_angles, out=thrusts[:, 0])
+        np.sin(world_angles, out=thrusts[:, 1])
+        np.multiply(thrust_mag[rows], thrusts, out=thrusts)
+        # Vectors are (2, M) (x row, y row) in the substep loop, so that the per-buoy coefficients broadcast.
+        x_start, v_start = self.position_m[rows].T, self.velocity_mps[rows].T
+        flow = np.empty((2, *v_start.shape))  # the surface water and the wind, m/s
+        flow[0], flow[1] = water[rows].T, wind[rows].T
+        x, v = _translate(x_start, v_start, thrusts, flow, c)
 
-        substeps = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
-        h = dt_s / substeps
-        yaw_rate_decay = p.yaw_damping_nms_per_rad / p.yaw_inertia_kgm2 * h
-        # The yaw integrator's factors depend on h alone: one value, broadcast over the buoys at each substep.
-        yaw_phi1, yaw_phi2 = _phi1(np.full(1, yaw_rate_decay)), _phi2(np.full(1, yaw_rate_decay))
-        slew = p.thrust_slew_radps * h
-        for _ in range(substeps):
-            turn = wrap_angle(target - nozzle)
-            nozzle = nozzle + np.minimum(np.maximum(turn, -slew), slew)
-            world_angle = heading + nozzle
-            direction = np.empty_like(v)
-            direction[:, 0], direction[:, 1] = np.cos(world_angle), np.sin(world_angle)
-            thrust = mag[:, None] * direction
-
-            # Predictor with the coefficients at the start, corrector at the midpoint.
-            accel, h_over_tau = self._acceleration(v, thrust, u, w, h, self._coefficients(v, u, w))
-            dv_pred = accel * (h * _phi1(h_over_tau))[:, None]  # (the predictor needs no displacement)
-            dv, dx = self._translate(v, thrust, u, w, h, self._coefficients(v + 0.5 * dv_pred, u, w))
-            x, v = x + dx, v + dv
-
-            yaw_accel = (torque - p.yaw_damping_nms_per_rad * rate) / p.yaw_inertia_kgm2
-            heading = heading + h * (rate + yaw_accel * h * yaw_phi2)
-            rate = rate + yaw_accel * h * yaw_phi1
-
-        self.position_m[act], self.velocity_mps[act] = x, v
-        self.heading_rad[act], self.yaw_rate_radps[act] = wrap_angle(heading), rate
-        self.thrust_angle_body_rad[act] = wrap_angle(nozzle)
-        self.thrust_n[act] = thrust
+        accel = (v - v_start) / dt_s  # before the write-back: v_start may be a view of velocity_mps
+        self.position_m[rows], self.velocity_mps[rows] = x.T, v.T
+        self.heading_rad[rows], self.yaw_rate_radps[rows] = wrap_angle(heading), rate
+        self.thrust_angle_body_rad[rows] = wrap_angle(nozzle)
+        self.thrust_n[rows] = thrusts[-1].T
         self.acceleration_mps2 = np.zeros((n, 2))
-        self.acceleration_mps2[act] = (v - v_start) / dt_s
-        idle = ~act
-        self.velocity_mps[idle] = 0.0
-        self.yaw_rate_radps[idle] = 0.0
-        self.thrust_n[idle] = 0.0
+        self.acceleration_mps2[rows] = accel.T
+        if not every:
+            idle = ~act
+            self.velocity_mps[idle] = 0.0
+            self.yaw_rate_radps[idle] = 0.0
+            self.thrust_n[idle] = 0.0
         return self.acceleration_mps2.copy()
 
-    def _coefficients(self, v: FloatArray, water: FloatArray, wind: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Water and air drag coefficients (N per m/s), each (M,), at velocity v (M, 2) m/s."""
-        p = self.params
-        water_coef = p.linear_drag_n_per_mps + p.quadratic_drag_n_per_mps2 * _norm(v - water)
-        air_coef = p.air_drag_n_per_mps2 * _norm(wind - v)
-        return water_coef, air_coef
 
-    def _translate(
-        self,
-        v: FloatArray,
-        thrust: FloatArray,
-        water: FloatArray,
-        wind: FloatArray,
-        h: float,
-        coefficients: tuple[FloatArray, FloatArray],
-    ) -> tuple[FloatArray, FloatArray]:
-        """Exact solution over h s of M v' = T + Dw (u - v) + Da (w - v) with frozen Dw, Da.
+class _Substeps(NamedTuple):
+    """What a buoy step needs that depends on the parameters and the step length alone.
 
-        Returns the velocity change (M, 2) m/s and the displacement (M, 2) m.
-        """
-        accel, rate = self._acceleration(v, thrust, water, wind, h, coefficients)
-        dv = accel * (h * _phi1(rate))[:, None]
-        dx = h * v + accel * (h * h * _phi2(rate))[:, None]
-        return dv, dx
+    The factors are read-only 0-d float64 arrays: numpy combines an array with one faster than with a Python float
+    (no conversion at each call), with the same float64 arithmetic.
+    """
 
-    def _acceleration(
-        self,
-        v: FloatArray,
-        thrust: FloatArray,
-        water: FloatArray,
-        wind: FloatArray,
-        h: float,
-        coefficients: tuple[FloatArray, FloatArray],
-    ) -> tuple[FloatArray, FloatArray]:
-        """The acceleration (M, 2) m/s^2 at v with frozen drag, and h over each drag time constant (M,)."""
-        water_coef, air_coef = coefficients
-        mass = self.params.effective_mass_kg
-        force = thrust + water_coef[:, None] * (water - v) + air_coef[:, None] * (wind - v)
-        rate = (water_coef + air_coef) / mass * h  # dimensionless: h / time constant
-        return force / mass, rate
+    count: int  # substeps per step
+    h: FloatArray  # substep length, s
+    h2: FloatArray  # h^2, s^2
+    half: FloatArray  # 0.5
+    slew: FloatArray  # largest nozzle turn per substep, rad
+    neg_slew: FloatArray  # -slew, rad
+    pi: FloatArray  # pi
+    two_pi: FloatArray  # 2 pi
+    damping: FloatArray  # yaw damping, N m s/rad
+    inertia: FloatArray  # yaw inertia, kg m^2
+    yaw_phi1: FloatArray  # phi1 and phi2 of h over the yaw time constant
+    yaw_phi2: FloatArray
+    mass: FloatArray  # effective mass, kg
+    scale: FloatArray  # (2, 1) c2 and ka: drag coefficients = scale |flow - v| + offset (N per m/s)
+    offset: FloatArray  # (2, 1) c1 and 0
+    closed: bool  # every drag rate h / tau is above the _phi1 / _phi2 series thresholds
+
+
+@functools.lru_cache(maxsize=32)
+def _substeps(p: BuoyParams, dt_s: float) -> _Substeps:
+    """The substeps of a buoy step of dt_s s: at most p.max_substep_s each (see _Substeps)."""
+    count = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
+    h = dt_s / count
+    slew = p.thrust_slew_radps * h
+    damping, inertia, mass = p.yaw_damping_nms_per_rad, p.yaw_inertia_kgm2, p.effective_mass_kg
+    # The yaw integrator's factors depend on h alone (exact exponential integrator of I r' = -c r + tau).
+    yaw_rate_decay = np.full(1, damping / inertia * h)
+    scale = [[p.quadratic_drag_n_per_mps2], [p.air_drag_n_per_mps2]]
+    offset = [[p.linear_drag_n_per_mps], [0.0]]  # ka |w - v| + 0 is ka |w - v|, never -0
+    factors = [np.array(value, dtype=float) for value in (h, h * h, 0.5, slew, -slew, np.pi, 2.0 * np.pi)]
+    factors += [np.array(value, dtype=float) for value in (damping, inertia)]
+    factors += [_phi1(yaw_rate_decay).reshape(()), _phi2(yaw_rate_decay).reshape(())]
+    factors += [np.array(value, dtype=float) for value in (mass, scale, offset)]
+    for factor in factors:
+        factor.setflags(write=False)  # shared by every step of this length
+    # Every h / time constant is at least c1 / M h (the coefficients are c1 + c2 |.| >= c1 and ka |.| >= 0,
+    # and rounding is monotonic): above the _phi1 / _phi2 series thresholds their closed forms apply to all.
+    closed = p.linear_drag_n_per_mps / mass * h >= 1e-3
+    return _Substeps(count, *factors, closed)
+
+
+def _turn(
+    nozzle: FloatArray, target: FloatArray, heading: FloatArray, rate: FloatArray, torque: FloatArray, c: _Substeps
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Slew the nozzles (M,) rad towards target and integrate the yaw under the torque (M,) N m over the substeps.
+
+    Returns the final nozzle angles (M,) rad (unwrapped), the world thrust angle heading + nozzle at each
+    substep (substeps, M) rad (the heading at the start of the substep, the nozzle after its slew), and the
+    final heading (M,) rad (unwrapped) and yaw rate (M,) rad/s.
+    """
+    m = nozzle.shape[0]
+    nozzles, changes = np.empty((c.count, m)), np.empty((c.count, m))
+    rates = np.empty((c.count + 1, m))
+    rates[0] = rate
+    for k in range(c.count):
+        turn = c.pi - np.mod(c.pi - (target - nozzle), c.two_pi)  # wrap_angle(target - nozzle)
+        nozzle = np.add(nozzle, np.minimum(np.maximum(turn, c.neg_slew), c.slew), out=nozzles[k])
+        # The yaw acceleration times h (rad/s), then the rate at the end of the substep.
+        change = np.multiply((torque - c.damping * rate) / c.inertia, c.h, out=changes[k])
+        rate = np.add(rate, change * c.yaw_phi1, out=rates[k + 1])
+    # The heading does not feed back: its increments h (r + change phi2) for all substeps at once, summed in
+    # order (np.add.accumulate adds row after row, as the substeps would).
+    headings = np.empty((c.count + 1, m))
+    headings[0] = heading
+    np.multiply(c.h, rates[:-1] + changes * c.yaw_phi2, out=headings[1:])
+    headings = np.add.accumulate(headings, axis=0)
+    world_angles = headings[:-1] + nozzles  # the heading at the start of each substep, the slewed nozzle
+    return nozzle, world_angles, headings[-1], rate
+
+
+def _translate(
+    x: FloatArray, v: FloatArray, thrusts: FloatArray, flow: FloatArray, c: _Substeps
+) -> tuple[FloatArray, FloatArray]:
+    """Integrate M v' = T + Dw (u - v) + Da (w - v), x' = v over the substeps; return x and v (2, M).
+
+    x, v: (2, M) position m and velocity m/s; thrusts: (substeps, 2, M) N; flow: (2, 2, M) the surface water u
+    and the wind w, m/s. Each substep: a predictor with the drag coefficients frozen at v gives the midpoint
+    velocity, then the exact solution with the coefficients frozen there.
+    """
+    h, scale, offset = c.h, c.scale, c.offset
+    velocities = np.empty((c.count + 1, *v.shape))  # v at the start of each substep, and at the end
+    velocities[0] = v
+    positions = np.empty((c.count + 1, *x.shape))  # x, then the displacement in each substep
+    drifts = positions[1:]  # first the displacement beyond h v of each substep, h v added after the loop
+    for k, thrust in enumerate(thrusts):
+        relative = flow - v  # both frozen-coefficient solutions start from v
+        coefficients = scale * np.hypot(relative[:, 0], relative[:, 1]) + offset
+        accel, rate = _acceleration(thrust, relative, coefficients, c.mass, h)
+        # (-e) / r == e / (-r): the closed forms divide by the -r they take the expm1 of.
+        neg_rate = -rate
+        phi1 = np.expm1(neg_rate) / neg_rate if c.closed else _phi1(rate)
+        dv_pred = accel * (h * phi1)  # (the predictor needs no displacement)
+        mid = flow - (v + c.half * dv_pred)  # the flow relative to the midpoint velocity
+        coefficients = scale * np.hypot(mid[:, 0], mid[:, 1]) + offset
+        accel, rate = _acceleration(thrust, relative, coefficients, c.mass, h)
+        if c.closed:
+            neg_rate = -rate
+            decay = np.expm1(neg_rate)
+            phi1, phi2 = decay / neg_rate, (rate + decay) / (rate * rate)
+        else:
+            phi1, phi2 = _phi1(rate), _phi2(rate)
+        np.multiply(accel, c.h2 * phi2, out=drifts[k])
+        v = np.add(v, accel * (h * phi1), out=velocities[k + 1])
+    # dx = h v + drift for every substep at once, then x summed over the substeps in order (row after row).
+    np.add(h * velocities[:-1], drifts, out=drifts)
+    positions[0] = x
+    return np.add.accumulate(positions, axis=0)[-1], v
+
+
+def _acceleration(
+    thrust: FloatArray, relative: FloatArray, coefficients: FloatArray, mass: float, h: float
+) -> tuple[FloatArray, FloatArray]:
+    """The acceleration (2, M) m/s^2 with frozen drag, and h over each drag time constant (M,).
+
+    thrust: (2, M) N; relative: (2, 2, M) the water and the wind relative to the hull, m/s; coefficients:
+    (2, M) the water and air drag coefficients, N per m/s; mass in kg, h in s.
+    """
+    terms = coefficients[:, None] * relative  # the water drag and the windage, N
+    force = thrust + terms[0] + terms[1]
+    rate = (coefficients[0] + coefficients[1]) / mass * h  # dimensionless: h / time constant
+    return force / mass, rate
 
 
 # --------------------------------------------------------------------------- eBot

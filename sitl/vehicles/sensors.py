@@ -251,7 +251,10 @@ def wrap_angle(angle_rad: ArrayLike) -> FloatArray:
 def world_to_body(vectors: FloatArray, heading_rad: FloatArray) -> FloatArray:
     """(k, 2) world-frame vectors (east, north) into the body frame (x forward along heading, y left)."""
     c, s = np.cos(heading_rad), np.sin(heading_rad)
-    return np.column_stack((c * vectors[:, 0] + s * vectors[:, 1], -s * vectors[:, 0] + c * vectors[:, 1]))
+    x, y = vectors[:, 0], vectors[:, 1]
+    body = np.empty((len(c), 2))
+    body[:, 0], body[:, 1] = c * x + s * y, -s * x + c * y
+    return body
 
 
 def tilted_imu(
@@ -303,6 +306,19 @@ def noisy_light(readings: ArrayLike, rng: np.random.Generator, spec: LightSpec |
 # ---------------------------------------------------------------- the suite
 
 
+def _rows(agents: IntArray, n: int) -> IntArray | slice:
+    """An index for the rows of `agents` (sorted, distinct, out of n): a slice when it is every row, the usual case
+    (a view, no fancy indexing), else agents."""
+    return slice(None) if agents.shape[0] == n else agents
+
+
+def _filled(k: int, value: float) -> FloatArray:
+    """(k,) float array of value (np.full without its Python-level overhead)."""
+    out = np.empty(k)
+    out.fill(value)
+    return out
+
+
 class _Channel:
     """The measurement schedule and delivery queue of one rate-limited sensor over all agents."""
 
@@ -317,10 +333,12 @@ class _Channel:
         """Agents with a measurement scheduled in the step ending at t_s; their schedules move past t_s."""
         if self.next_due_s is None:
             self.next_due_s = t_s + self.phase_s
-        agents = np.flatnonzero(self.next_due_s <= t_s + _TIME_EPS_S)
+        limit = t_s + _TIME_EPS_S
+        agents = (self.next_due_s <= limit).nonzero()[0]
+        rows = _rows(agents, self.next_due_s.shape[0])
         if agents.size:
-            behind = t_s + _TIME_EPS_S - self.next_due_s[agents]
-            self.next_due_s[agents] += self.period_s * (np.floor(behind / self.period_s) + 1.0)
+            behind = limit - self.next_due_s[rows]
+            self.next_due_s[rows] += self.period_s * (np.floor(behind / self.period_s) + 1.0)
         return agents
 
     def push(self, t_s: float, reading: object) -> None:
@@ -438,7 +456,13 @@ class SensorSuite:
 
     @staticmethod
     def _finite(agents: IntArray, *arrays: FloatArray) -> IntArray:
+        """The agents whose rows of every array are finite."""
         if agents.size == 0:
+            return agents
+        for array in arrays:  # the usual case: all the truth is finite, nothing to drop
+            if not np.isfinite(array).all():
+                break
+        else:
             return agents
         ok = None
         for array in arrays:
@@ -457,6 +481,7 @@ class SensorSuite:
         if agents.size == 0:
             return
         k = agents.size
+        rows = _rows(agents, self.n_agents)
         fresh = spec.noise_m * self.rng.standard_normal((k, 2))
         if spec.correlated > 0.0:
             # Exact discretization of the first-order Gauss-Markov process over the time since the last fix.
@@ -466,17 +491,17 @@ class SensorSuite:
             error = rho * self._gps_error_m[agents] + np.sqrt(1.0 - rho**2) * fresh
         else:
             error = fresh
-        self._gps_error_m[agents] = error
-        self._gps_error_t_s[agents] = t
-        noisy = position[agents] + error + self._common_gps_error(t, spec)
+        self._gps_error_m[rows] = error
+        self._gps_error_t_s[rows] = t
+        noisy = position[rows] + error + self._common_gps_error(t, spec)
         lat, lon = self.frame.to_geodetic(noisy[:, 0], noisy[:, 1])
         if spec.quantum_deg > 0.0:
             lat = np.round(lat / spec.quantum_deg) * spec.quantum_deg
             lon = np.round(lon / spec.quantum_deg) * spec.quantum_deg
-        ground_velocity = velocity[agents] + spec.velocity_noise_mps * self.rng.standard_normal((k, 2))
+        ground_velocity = velocity[rows] + spec.velocity_noise_mps * self.rng.standard_normal((k, 2))
         reported = spec.reported()
-        accuracies = (None, None) if reported is None else (np.full(k, reported[0]), np.full(k, reported[1]))
-        self._gps.push(t, GpsFix(agents, np.full(k, t), lat, lon, ground_velocity, *accuracies))
+        accuracies = (None, None) if reported is None else (_filled(k, reported[0]), _filled(k, reported[1]))
+        self._gps.push(t, GpsFix(agents, _filled(k, t), lat, lon, ground_velocity, *accuracies))
 
     def _common_gps_error(self, t: float, spec: GpsSpec) -> FloatArray:
         """(2,) the fleet-wide GPS error at t (s): exact Gauss-Markov steps between calls."""
@@ -497,17 +522,18 @@ class SensorSuite:
         agents = self._finite(self._compass.due(t), heading)
         if agents.size == 0:
             return
+        rows = _rows(agents, self.n_agents)
         noise = np.radians(spec.noise_deg) * self.rng.standard_normal(agents.size)
-        measured = wrap_angle(heading[agents] + self.compass_bias_rad[agents] + noise)
-        times = np.full(agents.size, t)
+        measured = wrap_angle(heading[rows] + self.compass_bias_rad[rows] + noise)
+        times = _filled(agents.size, t)
         if tilt is None:
             self._compass.push(t, CompassReading(agents, times, measured))
             return
         # an autopilot's attitude: roll and pitch to a tenth of a degree or so, its gyro's rates
         roll, pitch, body = tilt
         error = np.radians(spec.tilt_noise_deg) * self.rng.standard_normal((agents.size, 2))
-        self._compass.push(t, CompassReading(agents, times, measured, roll[agents] + error[:, 0],
-                                             pitch[agents] + error[:, 1], body[agents].copy()))  # fmt: skip
+        self._compass.push(t, CompassReading(agents, times, measured, roll[rows] + error[:, 0],
+                                             pitch[rows] + error[:, 1], body[rows].copy()))  # fmt: skip
 
     def _measure_imu(
         self, t: float, accel: FloatArray, heading: FloatArray, yaw_rate: FloatArray, tilt: tuple | None = None
@@ -518,26 +544,28 @@ class SensorSuite:
         if agents.size == 0:
             return
         k = agents.size
-        body = world_to_body(accel[agents], heading[agents])
-        rate = yaw_rate[agents]
+        rows = _rows(agents, self.n_agents)
+        body = world_to_body(accel[rows], heading[rows])
+        rate = yaw_rate[rows]
         if tilt is not None:  # the tilted body's specific force and rates (x forward, y left, z up)
-            force, rates = tilted_imu(body, tilt[0][agents], tilt[1][agents], tilt[2][agents])
+            force, rates = tilted_imu(body, tilt[0][rows], tilt[1][rows], tilt[2][rows])
             body, rate = force[:, :2], rates[:, 2]
-        body += self.accel_bias_mps2[agents] + spec.accel_noise_mps2 * self.rng.standard_normal((k, 2))
-        gyro = rate + self.gyro_bias_radps[agents] + spec.gyro_noise_radps * self.rng.standard_normal(k)
+        body += self.accel_bias_mps2[rows] + spec.accel_noise_mps2 * self.rng.standard_normal((k, 2))
+        gyro = rate + self.gyro_bias_radps[rows] + spec.gyro_noise_radps * self.rng.standard_normal(k)
         if tilt is None:
-            self._imu.push(t, ImuReading(agents, np.full(k, t), body, gyro))
+            self._imu.push(t, ImuReading(agents, _filled(k, t), body, gyro))
             return
         z = force[:, 2] + spec.accel_noise_mps2 * self.rng.standard_normal(k)
         gyro_xy = rates[:, :2] + spec.gyro_noise_radps * self.rng.standard_normal((k, 2))
-        self._imu.push(t, ImuReading(agents, np.full(k, t), body, gyro, z, gyro_xy))
+        self._imu.push(t, ImuReading(agents, _filled(k, t), body, gyro, z, gyro_xy))
 
     def _measure_encoders(self, t: float, travel: FloatArray) -> EncoderReading | None:
         assert self.encoders is not None
         agents = self._finite(np.arange(self.n_agents), travel)
         if agents.size == 0:
             return None
-        return EncoderReading(agents, np.full(agents.size, t), encoder_ticks(travel[agents], self.encoders))
+        ticks = encoder_ticks(travel[_rows(agents, self.n_agents)], self.encoders)
+        return EncoderReading(agents, _filled(agents.size, t), ticks)
 
     # ------------------------------------------------------------ range finders and light sensors
 

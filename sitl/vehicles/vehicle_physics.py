@@ -46,6 +46,13 @@ from sitl.world.world import FloatArray, World
 PRE_ROLL_S = 2.0  # sensors and estimators run this long before t = 0, as a vessel powered up before the mission
 
 
+def _row_index(rows: NDArray[np.intp]) -> NDArray[np.intp] | slice:
+    """Sorted distinct rows as an index: a slice when they are contiguous (indexing gives views), else the rows."""
+    if rows.size and rows[-1] - rows[0] == rows.size - 1:
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
 class VehiclePhysics:
     """N simulated vehicles (buoys and eBots) in one environment: actuators in, truth and sensor readings out.
 
@@ -129,6 +136,9 @@ class VehiclePhysics:
                 sensor_specs.get("imu", ImuSpec()),
                 None,
             )
+        # The rows of each kind as a slice when they are contiguous (the usual case): views instead of copies.
+        self._buoy_rows, self._ebot_rows = _row_index(self.buoys), _row_index(self.ebots)
+        self._motorboat_rows = _row_index(m)
         self.t = float(t0_s)
         self.wind = np.zeros_like(self.position)
         self.current = np.zeros_like(self.position)
@@ -162,11 +172,11 @@ class VehiclePhysics:
 
         Wind and current are taken at the positions before the step and held over it (`wind`, `current`).
         """
-        b, e = self.buoys, self.ebots
+        b, e = self._buoy_rows, self._ebot_rows
         self.wind = self.environment.wind_at(self.position)
         self.current = self.environment.current_at(self.position)
         if self.buoy is not None:
-            self.buoy.active = self.active[b]
+            self.buoy.active = self.active[b].copy()
             self.buoy.step(thrust_body_n, dt_s, self.wind[b], self.current[b], self.max_thrust_n)
             self.position[b], self.velocity[b], self.heading[b] = (
                 self.buoy.position_m,
@@ -174,7 +184,7 @@ class VehiclePhysics:
                 self.buoy.heading_rad,
             )
         if self.ebot is not None:
-            self.ebot.active = self.active[e]
+            self.ebot.active = self.active[e].copy()
             self.ebot.step(wheels_mps, dt_s, world)
             self.position[e], self.velocity[e], self.heading[e] = (
                 self.ebot.position_m,
@@ -184,10 +194,10 @@ class VehiclePhysics:
             self.wall_contacts = self.ebot.wall_contacts
             self.robot_contacts = self.ebot.robot_contacts
         if self.motorboat is not None:
-            m = self.motorboats
+            m = self._motorboat_rows
             boats = self.motorboat
-            boats.active = self.active[m]
-            command = np.zeros((m.size, 2)) if motorboat_commands is None else motorboat_commands
+            boats.active = self.active[m].copy()
+            command = np.zeros((self.motorboats.size, 2)) if motorboat_commands is None else motorboat_commands
             boats.step(command, dt_s, self.wind[m], self.current[m], self.motorboat_thrust_fraction)
             self.position[m], self.velocity[m] = boats.position_m, boats.velocity_mps
             self.heading[m] = boats.heading_rad

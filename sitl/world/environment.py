@@ -197,13 +197,15 @@ class Environment:
 
     def wind_at(self, position_m: FloatArray) -> FloatArray:
         """(N, 2) wind velocity over ground (m/s) at positions (N, 2) m: mean plus the uniform gust."""
-        n = _as_positions(position_m).shape[0]
-        return np.broadcast_to(self._mean_wind + self._gust, (n, 2)).copy()
+        wind = np.empty(_as_positions(position_m).shape)
+        wind[...] = self._mean_wind + self._gust
+        return wind
 
     def current_at(self, position_m: FloatArray) -> FloatArray:
         """(N, 2) water current over ground (m/s) at positions (N, 2) m: uniform plus the grid."""
         position_m = _as_positions(position_m)
-        flow = np.broadcast_to(self._uniform_current, position_m.shape).copy()
+        flow = np.empty(position_m.shape)
+        flow[...] = self._uniform_current
         if self.current.grid is not None:
             flow += self.current.grid.sample(position_m)
         return flow
