@@ -312,7 +312,7 @@ class SimulatedVehicle(RcInputHandling, VehicleCommands, TelemetryStreams):
         if t_s < self._t:
             return
         self._t = t_s
-        live = self.rc.update(t_s, float(self.params.values["RC_OVERRIDE_TIME"]), self._trims())  # failsafe_s
+        live = self.rc.update(t_s, self.failsafe_s, self._trims())
         if self._driving_override and not live:
             self._driving_override = False
             if self.armed and self.mode in DRIVING_MODES and np.any(self._command):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from sitl.vehicles import autopilot_safety as safety
-from sitl.vehicles.autopilot_streams import PRODUCED
+from sitl.vehicles.autopilot_streams import PRODUCED, next_due
 from sitl.vehicles.vehicle_defs import (
     CAPABILITIES,
     FLIGHT_SW_VERSION,
@@ -222,8 +222,7 @@ class TelemetryStreams:
                 data = b""
             if data:
                 out += data
-                due += period  # StreamSchedule.sent (autopilot_streams.next_due)
-                due_s[message_id] = due if due > t_s - period else t_s + period
+                due_s[message_id] = next_due(due, period, t_s)  # as StreamSchedule.sent
                 if reading is not None:
                     sent_reading[message_id] = reading[0]
         if self._fresh("light", self._light):
