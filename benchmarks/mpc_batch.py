@@ -71,7 +71,7 @@ class Batch:
         self.mpc, self.data, self.qp = mpc, data, qp
         self.scale = mpc.model.max_thrust_n
         qp.inputs["a"][:] = np.resize(constraint_values, qp.inputs["a"].size)
-        self.n_poly = mpc.polygon_sides * mpc.horizon
+        self.n_poly = mpc._n_poly
         step = mpc.max_thrust_change_n / self.scale
         self.lba, self.uba = qp.inputs["lba"].reshape(VESSELS, -1), qp.inputs["uba"].reshape(VESSELS, -1)
         self.lba[:, self.n_poly :], self.uba[:, self.n_poly :] = -step, step
@@ -91,7 +91,7 @@ class Batch:
         self.lbx[:, :2] = np.maximum(-box, -step)[:, None]
         self.ubx[:, :2] = np.minimum(box, step)[:, None]
         self.uba[:, : self.n_poly] = (box * self.mpc.inradius_ratio)[:, None]
-        self.lba[:, : self.n_poly] = (-2.0 * box)[:, None]
+        self.lba[:, : self.n_poly] = (box * self.mpc.polygon_lower_ratio)[:, None]
 
 
 def per_vessel_calls(mpcs: list[BuoyMpc]) -> Callable[[np.ndarray], np.ndarray]:

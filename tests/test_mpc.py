@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from bob_autonomy.control.ebot_mpc import DiffDriveMpc, _clipped
-from bob_autonomy.control.mpc import BuoyMpc, polygon_normals
+from bob_autonomy.control.mpc import BuoyMpc, polygon_normals, polygon_rows
 from bob_autonomy.control.velocity_control import BuoyModel
 
 MODEL = BuoyModel()
@@ -169,6 +169,49 @@ def test_plan_matches_ipopt_on_the_same_problem() -> None:
         p = np.concatenate((velocity, water, desired, previous / MODEL.max_thrust_n))
         x = np.array(nlp(p=p, **mpc.qp_bounds(limit, previous))["x"]).ravel() * MODEL.max_thrust_n
         np.testing.assert_allclose(mpc.last_plan_world_n, x.reshape(-1, 2), atol=1e-3)
+
+
+@pytest.mark.parametrize("sides", range(3, 18))
+def test_polygon_rows_bound_the_same_polygon_as_its_sides(sides: int) -> None:
+    # Two-sided rows for an even number of sides (opposite sides are parallel), one row per side otherwise: the
+    # largest support over the rows is the largest over all sides, for any point.
+    rows, two_sided = polygon_rows(sides)
+    assert two_sided == (sides % 2 == 0) and len(rows) == (sides // 2 if two_sided else sides)
+    points = np.random.default_rng(sides).normal(0.0, 30.0, (500, 2))
+    support = np.abs(points @ rows.T) if two_sided else points @ rows.T
+    np.testing.assert_allclose(support.max(axis=1), (points @ polygon_normals(sides).T).max(axis=1), rtol=1e-14)
+
+
+def test_plans_are_those_of_the_qp_with_one_row_per_side() -> None:
+    # The QP as it was built before the rows were paired (16 one-sided rows per step, each with a lower bound that
+    # is never active), solved by the same solver on the same Hessian and gradient: the same plans to round-off.
+    mpc = BuoyMpc(time_budget_s=RELAXED_BUDGET_S)
+    n, sides, scale = 2 * mpc.horizon, mpc.polygon_sides, MODEL.max_thrust_n
+    constraints = np.zeros((sides * mpc.horizon + n - 2, n))
+    for k in range(mpc.horizon):
+        constraints[sides * k : sides * (k + 1), 2 * k : 2 * k + 2] = polygon_normals(sides)
+    for j in range(n - 2):
+        constraints[sides * mpc.horizon + j, j + 2], constraints[sides * mpc.horizon + j, j] = 1.0, -1.0
+    one_sided = ca.conic(
+        "one_sided", mpc.solver, {"h": ca.Sparsity.dense(n, n), "a": ca.Sparsity.dense(*constraints.shape)}
+    )
+    data = mpc._data.function
+    rng = np.random.default_rng(11)
+    largest = 0.0
+    for _ in range(200):
+        desired, velocity, water = rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 2), rng.normal(0, 0.2, 2)
+        limit = rng.uniform(5.0, 45.0)
+        previous = mpc.into_polygon(rng.uniform(-40, 40, 2), limit)
+        plan = mpc._solve_qp(tuple(desired), tuple(velocity), tuple(water), limit, tuple(previous))
+        h, g = data(np.concatenate((velocity, water, desired, previous / scale)))
+        box, step, prev = limit / scale, mpc.max_thrust_change_n / scale, previous / scale
+        lbx, ubx = np.full(n, -box), np.full(n, box)
+        lbx[:2], ubx[:2] = np.maximum(-box, prev - step), np.minimum(box, prev + step)
+        lba = np.concatenate((np.full(sides * mpc.horizon, -2.0 * box), np.full(n - 2, -step)))
+        uba = np.concatenate((np.full(sides * mpc.horizon, box * mpc.inradius_ratio), np.full(n - 2, step)))
+        x = one_sided(h=h, g=g, a=constraints, lbx=lbx, ubx=ubx, lba=lba, uba=uba)["x"]
+        largest = max(largest, float(np.abs(plan - scale * np.array(x).reshape(-1, 2)).max()))
+    assert largest < 1e-9  # N
 
 
 # ---------------------------------------------------------------- buoy: failures

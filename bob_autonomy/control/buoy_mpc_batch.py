@@ -178,7 +178,7 @@ class BuoyMpcBatch:
         self._lbx[:] = -box[:, None]
         self._ubx[:] = box[:, None]
         self._uba[:, : first._n_poly] = (box * ratio)[:, None]
-        self._lba[:, : first._n_poly] = (-2.0 * box)[:, None]
+        self._lba[:, : first._n_poly] = (box * first.polygon_lower_ratio)[:, None]
         self._lbx[:, :2] = np.maximum(-box[:, None], prev - step)
         self._ubx[:, :2] = np.minimum(box[:, None], prev + step)
 

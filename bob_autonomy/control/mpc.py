@@ -118,6 +118,20 @@ def polygon_normals(sides: int) -> FloatArray:
     return np.column_stack((np.cos(angles), np.sin(angles)))
 
 
+def polygon_rows(sides: int) -> tuple[FloatArray, bool]:
+    """The QP's rows for one step's thrust polygon: (rows, 2) unit normals, and whether each row is two-sided.
+
+    With an even number of sides, opposite sides are parallel: the polygon is {u : |n_i . u| <= R cos(pi / sides),
+    i < sides / 2}, half as many rows, each bounded on both sides (DAQP's work per solve grows with the rows: its
+    `update_M` forms every row times the inverse Cholesky factor, and each iteration scans every row for the most
+    violated). The second half of polygon_normals are the first half's negations to within 1e-16; here they are
+    exact. With an odd number of sides each side is its own one-sided row."""
+    normals = polygon_normals(sides)
+    if sides % 2 == 0:
+        return normals[: sides // 2], True
+    return normals, False
+
+
 # --------------------------------------------------------------------------- buoy
 
 
@@ -163,7 +177,7 @@ def _buoy_qp_functions(
         v = ad @ v + bd @ (scale * zk + offset)
         cost += tracking_weight * ca.sumsqr(v - desired) + input_change_weight * ca.sumsqr(zk - previous)
         previous = zk
-    normals = ca.DM(polygon_normals(polygon_sides))
+    normals = ca.DM(polygon_rows(polygon_sides)[0])
     rows = [normals @ z[2 * k : 2 * k + 2] for k in range(horizon)]
     if horizon > 1:
         rows.append(z[2:] - z[:-2])
@@ -248,6 +262,11 @@ class BuoyMpc:
         self.time_budget_s = float(time_budget_s)
         self.normals = polygon_normals(self.polygon_sides)
         self.inradius_ratio = math.cos(math.pi / self.polygon_sides)
+        row_normals, two_sided = polygon_rows(self.polygon_sides)
+        # A polygon row's lower bound per N of limit: the opposite side's, or (one-sided rows) one never active
+        # (a row's support is at most the limit) yet finite for every plugin.
+        self.polygon_lower_ratio = -self.inradius_ratio if two_sided else -2.0
+        self._rows_per_step = len(row_normals)
         self.solves = 0
         self.fallbacks = 0
         self.last_plan_world_n: FloatArray | None = None
@@ -274,7 +293,7 @@ class BuoyMpc:
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         qp = self._qp.inputs
         qp["a"][:] = constraint_values
-        n_poly = self.polygon_sides * self.horizon
+        n_poly = self._rows_per_step * self.horizon
         qp["lba"][n_poly:] = -self.max_thrust_change_n / self.model.max_thrust_n
         qp["uba"][n_poly:] = self.max_thrust_change_n / self.model.max_thrust_n
         self._n_poly = n_poly
@@ -292,7 +311,8 @@ class BuoyMpc:
         prev = np.asarray(previous_thrust_world_n, dtype=float) / scale
         lbx, ubx = np.full(2 * self.horizon, -box), np.full(2 * self.horizon, box)
         lbx[:2], ubx[:2] = np.maximum(-box, prev - step), np.minimum(box, prev + step)
-        lbg = np.concatenate((np.full(self._n_poly, -2.0 * box), np.full(2 * self.horizon - 2, -step)))
+        polygon_lower = box * self.polygon_lower_ratio
+        lbg = np.concatenate((np.full(self._n_poly, polygon_lower), np.full(2 * self.horizon - 2, -step)))
         ubg = np.concatenate((np.full(self._n_poly, box * self.inradius_ratio), np.full(2 * self.horizon - 2, step)))
         return {"lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
 
@@ -314,7 +334,7 @@ class BuoyMpc:
             lbx.fill(-box)
             ubx.fill(box)
             qp["uba"][: self._n_poly] = box * self.inradius_ratio
-            qp["lba"][: self._n_poly] = -2.0 * box  # never active (support <= box); finite for every plugin
+            qp["lba"][: self._n_poly] = box * self.polygon_lower_ratio
             self._bounds_limit = limit
         step = self.max_thrust_change_n / scale
         lbx[0], lbx[1] = max(-box, prev_x - step), max(-box, prev_y - step)
