@@ -37,8 +37,9 @@ How (buoy). Every call solves one small convex QP, built once per model and tuni
   velocity (feed-forward), and the input-change form has no offset when the
   model is right.
 * constraints: |u_k| <= max_thrust_n approximated from inside by a regular
-  polygon with `polygon_sides` sides (vertices on the circle; one linear row
-  per side per step, the right-hand side scaled per call by max_thrust_n);
+  polygon with `polygon_sides` sides (vertices on the circle; per step one
+  two-sided row per pair of opposite sides, or with an odd number of sides
+  one row per side: `polygon_rows`; bounds scaled per call by max_thrust_n);
   per-step thrust change |u_k - u_{k-1}|_inf <= max_thrust_change_n (a box,
   for k = 0 against the previous applied thrust, as simple bounds on z_0);
   a circumscribing box |z| <= max_thrust_n as simple bounds (redundant, cheap).
