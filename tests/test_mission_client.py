@@ -7,6 +7,7 @@ import hashlib
 import select
 import socket
 import threading
+import time
 from collections.abc import Callable
 
 import pytest
@@ -227,3 +228,46 @@ def test_a_client_with_the_wrong_key_hears_nobody(make_fleet) -> None:
     with pytest.raises(MissionTimeoutError, match="found 0 of 1"):
         client.discover(1, timeout_s=0.5)
     assert client.counters.bad_signature > 0
+
+
+def test_set_params_sends_the_whole_set_before_it_waits_and_retries_only_what_was_not_echoed(make_fleet) -> None:
+    """The vessel's echoes are lost until it holds every value of the set: a client that waited for each echo
+    before sending the next parameter would never get one. The vessel serves one datagram per loop and echoes it
+    at once, so the echoes of the first two parameters are lost and the retry carries just those two."""
+    wanted = {"BOB_H": 1, "BOB_P0_M": 7.5, "BOB_MAX_SPD_MPS": 0.75}  # exact in float32
+    holder: dict[str, Vessel] = {}
+
+    def lose_echoes_until_all_set(frame: bytes) -> bool:
+        if frame[7:10] != bytes([22, 0, 0]):  # PARAM_VALUE
+            return False
+        params = holder["vessel"].component.params
+        return any(params.get(name) != value for name, value in wanted.items())
+
+    client, vessels = make_fleet((1,), drops={1: lose_echoes_until_all_set})
+    holder["vessel"] = vessels[1]
+    client.discover(1, timeout_s=3)
+    assert client.set_params(wanted) == {1: wanted}
+    assert vessels[1].dropped == 2 and vessels[1].component.counters.params_set == 3 + 2
+    with pytest.raises(ParamError, match=r"BOB_P0_M.*out of range"):
+        client.set_params({"BOB_H": 0, "BOB_P0_M": -1.0})  # checked before anything is sent
+    assert vessels[1].component.counters.params_set == 5 and vessels[1].component.params.get("BOB_H") == 1
+
+
+def test_the_client_counts_datagrams_the_kernel_dropped_for_it(make_fleet) -> None:
+    """While the receiver thread is held up, a flood overflows the socket's buffer: the kernel's drop count (Linux
+    SO_RXQ_OVFL, carried by the datagrams queued after the drops) becomes `kernel_drops`, which a failed exchange
+    reports."""
+    client, _ = make_fleet(())
+    flood = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        with client._lock:  # the receiver blocks in its first datagram's handling
+            for _ in range(40_000):
+                flood.sendto(b"\xfd" + bytes(40), client.local_address)
+        deadline = time.monotonic() + 10.0
+        while client.kernel_drops == 0 and time.monotonic() < deadline:
+            flood.sendto(b"\xfd" + bytes(40), client.local_address)  # the count rides on datagrams queued later
+            time.sleep(0.05)
+    finally:
+        flood.close()
+    assert client.kernel_drops > 0
+    assert client.counters.bytes_received > 0

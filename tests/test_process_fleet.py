@@ -560,7 +560,10 @@ def test_five_buoys_in_separate_processes_aggregate(tmp_path: Path) -> None:
 
     # p0 went from 100 m to 5 m over MAVLink at SWITCH_S; every vessel had it within a few simulated seconds.
     assert fleet.events_log == [{"t_s": SWITCH_S, "action": "set-behavior", "agents": [0, 1, 2, 3, 4]}]
-    assert len(m["event_delays_s"]) == 1 and m["event_delays_s"][0] < 5.0 and "event_errors" not in m
+    # One round trip for the whole set (set_params): 0.1 simulated s here (0.6 one parameter at a time); a lost
+    # echo costs a retry (1 wall s, 3 simulated s at this speed).
+    delays = m["event_delays_s"]
+    assert len(delays) == 1 and delays[0] < 5.0 and "event_errors" not in m, (delays, m["gcs_kernel_drops"])
     # The swarm aggregates: hull area and nearest-neighbour distances fall (the aggregation metrics).
     assert m["area_before_m2"] == pytest.approx(20_000.0, rel=0.1)  # held the 100 m lattice until the switch
     assert m["area_final_m2"] < 0.1 * m["area_before_m2"]

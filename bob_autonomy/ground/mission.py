@@ -53,40 +53,58 @@ class MissionClient(MissionTransfer):
     def set_param(self, name: str, value: float, vessels: Iterable[int] | None = None) -> dict[int, float]:
         """Set a parameter on the vessels (None: all found); checks it against the declared range first
         (ParamError), then verifies each vessel's PARAM_VALUE echo. Returns {system id: value in force}."""
-        spec = _SPECS.get(name)
-        if spec is None:
-            raise ParamError(f"unknown parameter {name!r}; known: {', '.join(_SPECS)}")
-        checked = spec.check(value)
-        wanted = float32(checked)
+        return {sid: values[name] for sid, values in self.set_params({name: value}, vessels).items()}
+
+    def set_params(self, values: dict[str, float], vessels: Iterable[int] | None = None) -> dict[int, dict[str, float]]:
+        """Set several parameters on the vessels (None: all found) in one round trip: every value is checked
+        against its declared range first (ParamError, nothing sent), then each vessel is sent all the
+        PARAM_SETs in the order given without waiting between them, and is done when it has echoed every value
+        in a PARAM_VALUE. A retry sends a vessel only the parameters it has not echoed yet. Returns
+        {system id: {name: value in force}}.
+
+        One round trip rather than one per parameter: a behaviour switch of nine parameters reaches a fleet in
+        the time of one answer, and a lost echo costs one retry of the whole set, not one per parameter.
+        """
+        checked: dict[str, tuple[float | int, float, int]] = {}  # name -> (value sent, float32 echo, MAV type)
+        for name, value in values.items():
+            spec = _SPECS.get(name)
+            if spec is None:
+                raise ParamError(f"unknown parameter {name!r}; known: {', '.join(_SPECS)}")
+            value_sent = spec.check(value)
+            checked[name] = (value_sent, float32(value_sent), spec.mav_type)
+        if not checked:
+            return {}
         targets = self._targets(vessels)
-        encoded = name.encode("ascii")
+        unechoed = {sid: list(checked) for sid in targets}  # in the order given
+        echoed: dict[int, dict[str, float]] = {sid: {} for sid in targets}
 
         def send(pending: list[int], attempt: int) -> None:
             for sid in pending:
-                self._send(
-                    self.codec.mav.param_set_encode(sid, self.target_component, encoded, float(checked), spec.mav_type),
-                    [sid],
-                )
+                for name in unechoed[sid]:
+                    value_sent, _, mav_type = checked[name]
+                    message = self.codec.mav.param_set_encode(
+                        sid, self.target_component, name.encode("ascii"), float(value_sent), mav_type
+                    )
+                    self._send(message, [sid])
 
         start = float(self.clock())
 
         def match(sid: int, msg) -> tuple[str, object] | None:
-            if msg.get_type() != "PARAM_VALUE" or msg.param_id != name:
+            if msg.get_type() != "PARAM_VALUE" or msg.param_id not in unechoed[sid]:
                 return None
-            if msg.param_value == wanted:
-                return "ok", msg.param_value
+            name = msg.param_id
+            if msg.param_value == checked[name][1]:
+                unechoed[sid].remove(name)
+                echoed[sid][name] = msg.param_value
+                return ("ok", echoed[sid]) if not unechoed[sid] else None
             # The vessel says why it refused in a STATUSTEXT sent just before the PARAM_VALUE.
             for t, _severity, text in reversed(self.statustexts(sid)):
                 if t >= start and name in text:
                     return "fail", f"refused ({text}); {name} is {msg.param_value:g}"
             return "wait", f"{name} is still {msg.param_value:g}"
 
-        return self._exchange(f"cannot set {name} = {value!r}", targets, send, match)  # type: ignore[return-value]
-
-    def set_params(self, values: dict[str, float], vessels: Iterable[int] | None = None) -> None:
-        """Set several parameters (in the order given) on the vessels."""
-        for name, value in values.items():
-            self.set_param(name, value, vessels)
+        what = "cannot set " + ", ".join(f"{name} = {value!r}" for name, value in values.items())
+        return self._exchange(what, targets, send, match)  # type: ignore[return-value]
 
     def get_param(self, name: str, vessels: Iterable[int] | None = None) -> dict[int, float]:
         """Read a parameter from the vessels: {system id: value} (INT32 values as whole floats)."""

@@ -33,6 +33,7 @@ class MissionTransfer(FleetLink):
         failures: dict[int, str] = {}
         reasons: dict[int, str] = {}
         start = float(self.clock())
+        drops_before = self.kernel_drops
         with self._listen() as q:
             for attempt in range(self.retries + 1):
                 send(sorted(pending), attempt)
@@ -62,9 +63,12 @@ class MissionTransfer(FleetLink):
                         reasons[sid] = str(value)
                 if not pending:
                     break
+        dropped = self.kernel_drops - drops_before
         for sid in pending:
             why = reasons.get(sid) or next((t for s, _, t in reversed(self.statustexts(sid)) if s >= start), None)
             failures[sid] = f"no answer after {self.retries + 1} tries" + (f" (last heard: {why})" if why else "")
+            if dropped:
+                failures[sid] += f"; our socket dropped {dropped} datagrams meanwhile (its receive buffer was full)"
         if failures:
             raise MissionError(what, failures)
         return results

@@ -432,6 +432,8 @@ class ProcessFleet(ProcessLifecycle, ProcessEvents):
         }
         if self.event_delays_s:
             metrics["event_delays_s"] = self.event_delays_s
+        if self.mission is not None:  # datagrams the ground station's socket lost: answers to events among them
+            metrics["gcs_kernel_drops"] = self.mission.kernel_drops
         if self.event_errors:
             metrics["event_errors"] = self.event_errors
         if self.interrupted:
