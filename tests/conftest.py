@@ -1,4 +1,4 @@
-"""Test isolation shared by every test module.
+"""Test isolation shared by every test module, and a check that pytest-xdist keeps the real-time tests together.
 
 A test that runs a command's main() in process (`bob-autonomy run`, the examples) configures the root logger as the
 command does: its handler and level would otherwise outlive the test, and a handler bound to that test's captured
@@ -23,3 +23,18 @@ def _root_logger_restored() -> Iterator[None]:
             handler.close()
     root.handlers[:] = handlers
     root.setLevel(level)
+
+
+@pytest.fixture(autouse=True)
+def _kept_in_its_xdist_group(request: pytest.FixtureRequest) -> None:
+    """Under `--dist loadgroup`, a test marked xdist_group must carry its group in its node id ("...@realtime"),
+    or pytest-xdist spreads the group over the workers without a word: the real-time tests (sockets, processes,
+    wall-clock rates) then run beside each other and fail at random under load. Fail saying so instead."""
+    node = request.node
+    grouped = getattr(request.config.option, "loadgroup", False) and node.get_closest_marker("xdist_group")
+    if grouped and "@" not in node.nodeid:
+        pytest.fail(
+            f"pytest-xdist did not put this test in its xdist_group: this pytest ({pytest.__version__}) and "
+            "pytest-xdist do not work together; install the versions pyproject.toml pins",
+            pytrace=False,
+        )
