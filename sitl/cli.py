@@ -25,6 +25,7 @@ from sitl.experiments.runner import run_to_directory
 from sitl.experiments.scenario import ScenarioError, load_scenario, packaged_scenarios
 from sitl.experiments.sweep import parse_param, partial_path, read_partial, run_sweep
 from sitl.fleets.budget import MAX_AGENT_STEPS, MAX_AGENTS, MAX_TRAJECTORY_ROWS, check_run_size
+from sitl.vehicles.vessel_shards import VesselProcessError
 
 FORCE_HELP = (
     f"run even beyond the size limits (at most {MAX_AGENTS:,} agents, {MAX_AGENT_STEPS['kinematic']:,.0f} "
@@ -53,6 +54,14 @@ def _parser() -> argparse.ArgumentParser:
         "--link",
         choices=["mavlink", "direct"],
         help="vehicle link (physics): MAVLink bytes through firmware_bridge, or readings handed over directly",
+    )
+    run.add_argument(
+        "--vessel-processes",
+        type=_positive_int,
+        default=1,
+        metavar="N",
+        help="physics: run the buoys' estimators, controllers and MAVLink links in N processes "
+        "(the same results, sooner on N cores; default 1)",
     )
     run.add_argument(
         "--animate",
@@ -146,6 +155,17 @@ def _execution_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: a whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not at least 1")
+    return value
+
+
 def _fail(message: object) -> int:
     print(f"bob-sitl: {message}", file=sys.stderr)
     return 2
@@ -194,11 +214,15 @@ def _run(args: argparse.Namespace) -> int:
     out = args.out or Path("runs") / scenario.name
     try:
         with _sigterm_interrupts():
-            result = run_to_directory(scenario, out, progress=not args.quiet, force=args.force)
+            result = run_to_directory(
+                scenario, out, progress=not args.quiet, force=args.force, vessel_processes=args.vessel_processes
+            )
     except ScenarioError as error:
         return _fail(error)
     except FileExistsError as error:  # the output directory (OutputDirectoryError), its message names it
         return _fail(error)
+    except VesselProcessError as error:
+        return _fail(f"{error}\nnothing written to {out}")
     except OSError as error:
         return _fail(f"cannot write the outputs to {out}: {error}")
     except KeyboardInterrupt:

@@ -52,13 +52,22 @@ class RunResult:
     metrics: dict
 
 
-def simulate(scenario: Scenario, progress: bool = False, force: bool = False) -> RunResult:
+def simulate(scenario: Scenario, progress: bool = False, force: bool = False, vessel_processes: int = 1) -> RunResult:
     """Step a lockstep fleet through the scenario, recording ground truth; no files.
 
     ScenarioError before anything is allocated when the run exceeds `sitl.fleets.budget`'s limits (unless `force`).
+    vessel_processes: processes the buoys' vessel side runs in (physics; the same results, sooner on more cores).
     """
     check_run_size(scenario, f"scenario {scenario.name!r}", force=force)
-    fleet = LockstepFleet(scenario)
+    fleet = LockstepFleet(scenario, vessel_processes=vessel_processes)
+    try:
+        return _simulated(fleet, progress)
+    finally:
+        fleet.close()  # after the metrics, which count the vessels' links
+
+
+def _simulated(fleet: LockstepFleet, progress: bool) -> RunResult:
+    scenario = fleet.scenario
     recorder = Recorder(scenario.log_period_s, [str(k) for k in _body_names(fleet)])
     steps = round(scenario.duration_s / scenario.dt_s)
     bar = tqdm(total=steps, desc=scenario.name, unit="step", disable=not progress, mininterval=0.5)
@@ -145,7 +154,9 @@ def _frame(fleet: LockstepFleet) -> Frame:
     )
 
 
-def run_to_directory(scenario: Scenario, out: Path, progress: bool = False, force: bool = False) -> RunResult:
+def run_to_directory(
+    scenario: Scenario, out: Path, progress: bool = False, force: bool = False, vessel_processes: int = 1
+) -> RunResult:
     """Simulate and write trajectory.csv, metrics.json, figures and scenario.toml to `out`.
 
     Everything is written to a temporary directory beside `out` and moved in
@@ -155,7 +166,7 @@ def run_to_directory(scenario: Scenario, out: Path, progress: bool = False, forc
     check_run_size(scenario, f"scenario {scenario.name!r}", force=force)
 
     def write(staging: Path) -> RunResult:
-        result = simulate(scenario, progress, force=force)
+        result = simulate(scenario, progress, force=force, vessel_processes=vessel_processes)
         result.recorder.write_csv(staging / "trajectory.csv")
         result.metrics["figures"] = write_figures(result.fleet, result.recorder, result.metrics, staging)
         (staging / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")

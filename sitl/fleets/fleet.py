@@ -129,9 +129,14 @@ def motorboat_params(scenario: Scenario) -> list:
 
 
 def make_bodies(
-    scenario: Scenario, kinds: NDArray[np.int_], position: FloatArray, heading: FloatArray
+    scenario: Scenario,
+    kinds: NDArray[np.int_],
+    position: FloatArray,
+    heading: FloatArray,
+    vessel_processes: int = 1,
 ) -> KinematicBodies:
-    """Kinematic or physical bodies, as the scenario's fidelity says (physics draws from its own stream)."""
+    """Kinematic or physical bodies, as the scenario's fidelity says (physics draws from its own stream).
+    vessel_processes: processes the buoys' vessel side is spread over (physics; the same results)."""
     boats = motorboat_params(scenario)
     if scenario.fidelity == "kinematic":
         bodies = KinematicBodies(kinds, position, heading)
@@ -156,6 +161,7 @@ def make_bodies(
         dt_s=scenario.dt_s,
         link=scenario.vessel.link,
         motorboat_params=boats,
+        vessel_processes=vessel_processes,
     )
 
 
@@ -163,17 +169,19 @@ class LockstepFleet:
     """All agents of a scenario in one process, stepped in lockstep.
 
     threads: how a big fleet's passes over its agents and pairs are spread over threads (default: one per core
-    available; the results are the same bits with any number).
+    available; the results are the same bits with any number). vessel_processes: at physics fidelity, the
+    processes the buoys' estimators, controllers and MAVLink links run in (sitl.vehicles.vessel_shards; the same
+    bits with any number); `close` stops them.
     """
 
-    def __init__(self, scenario: Scenario, threads: RowThreads | None = None) -> None:
+    def __init__(self, scenario: Scenario, threads: RowThreads | None = None, vessel_processes: int = 1) -> None:
         self.scenario = scenario
         self.threads = RowThreads() if threads is None else threads
         self.rng = np.random.default_rng(scenario.seed)
         self.world = build_world(scenario, self.rng)
         position, heading = initial_poses(scenario, self.world, self.rng)
         kinds = np.concatenate([np.full(g.count, BODY_KINDS[g.body]) for g in scenario.groups])
-        self.bodies = make_bodies(scenario, kinds, position, heading)
+        self.bodies = make_bodies(scenario, kinds, position, heading, vessel_processes)
         self.n = len(self.bodies)
         self.group_of = np.concatenate([np.full(g.count, k) for k, g in enumerate(scenario.groups)])
         self.group_names = [g.name for g in scenario.groups]
@@ -201,6 +209,12 @@ class LockstepFleet:
         self.t = 0.0
         self.events_log: list[dict] = []
         self.sync_table()
+
+    def close(self) -> None:
+        """Release what the fleet holds outside this process (vessel worker processes); idempotent."""
+        close = getattr(self.bodies, "close", None)
+        if close is not None:
+            close()
 
     @staticmethod
     def memory_fields_of(scenario: Scenario) -> dict[str, MemorySpec]:

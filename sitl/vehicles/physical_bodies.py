@@ -28,6 +28,7 @@ from sitl.vehicles.motorboat import MotorboatParams
 from sitl.vehicles.sensors import noisy_light, noisy_ranges
 from sitl.vehicles.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicles.vehicle_transport import DirectTransport, MavlinkTransport
+from sitl.vehicles.vessel_shards import BuoyShardSpec, ShardedBuoys
 from sitl.world.environment import Environment
 from sitl.world.world import FloatArray, World
 
@@ -72,6 +73,7 @@ class PhysicalBodies(KinematicBodies):
         dt_s: float = 0.1,
         link: str = "direct",
         motorboat_params: list[MotorboatParams] | None = None,
+        vessel_processes: int = 1,
     ) -> None:
         self.physics = VehiclePhysics(
             kinds, position, heading, environment, frame, rng, thrust_fraction, sensor_specs, t0_s=-PRE_ROLL_S,
@@ -88,7 +90,15 @@ class PhysicalBodies(KinematicBodies):
         wheel_base, per_tick = self.ebot_params.wheel_base_m, p.metres_per_tick
         # Simulated time: an MPC solve is never too slow for it, so a loaded machine cannot change a run.
         options = {"estimator": estimator, "controller": controller, "dt_s": dt_s, "mpc_time_budget_s": math.inf}
-        self.buoy_vessels = BuoyPipeline(b.size, frame, self.max_thrust_n, **options)
+        # More than one process: the buoys' vessel side (estimators, controllers, links) spread over processes
+        # (sitl.vehicles.vessel_shards; the same results); buoy_vessels and buoy_link are then None.
+        self.buoy_shards: ShardedBuoys | None = None
+        if vessel_processes > 1 and b.size > 1:
+            spec = BuoyShardSpec(0, self.max_thrust_n, frame, self.buoy_params.max_thrust_n, options, link, self.t)
+            self.buoy_shards = ShardedBuoys(spec, vessel_processes)
+            self.buoy_vessels = None
+        else:
+            self.buoy_vessels = BuoyPipeline(b.size, frame, self.max_thrust_n, **options)
         # eBots start from a known pose (the paper's robots are told theirs) and dead-reckon from there. Over MAVLink
         # the simulated autopilot (a skid-steer rover) slews their throttle as it does a boat's, and they plan with it.
         ebot_slew = parameter_default(EBOT, "MOT_SLEWRATE") / 100.0 if link == "mavlink" else 0.0
@@ -119,7 +129,9 @@ class PhysicalBodies(KinematicBodies):
             def clock() -> float:  # the vessels stamp readings with the simulated time
                 return self.t
 
-            self.buoy_link = MavlinkTransport(BUOY, b.size, self.buoy_params.max_thrust_n, clock)
+            self.buoy_link = None
+            if self.buoy_shards is None:
+                self.buoy_link = MavlinkTransport(BUOY, b.size, self.buoy_params.max_thrust_n, clock)
             self.ebot_link = MavlinkTransport(
                 EBOT,
                 e.size,
@@ -133,21 +145,33 @@ class PhysicalBodies(KinematicBodies):
             )
         elif link == "direct":
             self.buoy_link = self.ebot_link = self.motorboat_link = DirectTransport()
+            if self.buoy_shards is not None:
+                self.buoy_link = None
         else:
             raise ValueError(f"unknown vehicle link {link!r}; choose direct or mavlink")
         while self.t < -1e-9:
             self.apply(np.zeros((len(self), 2)), np.full(len(self), np.nan), 0.1, World())
 
+    def close(self) -> None:
+        """Stop the vessel worker processes, if any (a run's end; also done when the bodies are collected)."""
+        if self.buoy_shards is not None:
+            self.buoy_shards.close()
+
     @property
     def mpc_fallbacks(self) -> int:
+        shards = 0 if self.buoy_shards is None else self.buoy_shards.status()[0]
         vessels = (self.buoy_vessels, self.ebot_vessels, self.motorboat_vessels)
-        return sum(v.mpc_fallbacks for v in vessels)
+        return shards + sum(v.mpc_fallbacks for v in vessels if v is not None)
 
     def link_counters(self) -> dict[str, int]:
         """MAVLink counters of the vehicles and vessels (empty for the direct link)."""
         totals: dict[str, int] = {}
-        for transport in {id(t): t for t in (self.buoy_link, self.ebot_link, self.motorboat_link)}.values():
-            for name, value in transport.counters().items():
+        transports = [t for t in (self.buoy_link, self.ebot_link, self.motorboat_link) if t is not None]
+        counted = [t.counters() for t in {id(t): t for t in transports}.values()]
+        if self.buoy_shards is not None:
+            counted.append(self.buoy_shards.status()[1])
+        for counters in counted:
+            for name, value in counters.items():
                 totals[name] = totals.get(name, 0) + value
         if self.motorboats.size:  # wishes a motorboat could not follow (turn in place, move sideways): said, counted
             totals["motorboat_sideways_wishes"] = self.motorboat_vessels.sideways_wishes
@@ -161,7 +185,8 @@ class PhysicalBodies(KinematicBodies):
     def _estimate(self) -> PoseEstimate:
         n = len(self)
         out = PoseEstimate(np.full((n, 2), np.nan), np.zeros((n, 2)), np.full(n, np.nan))
-        pairs = ((self.buoys, self.buoy_vessels), (self.ebots, self.ebot_vessels))
+        buoys = self.buoy_shards if self.buoy_vessels is None else self.buoy_vessels
+        pairs = ((self.buoys, buoys), (self.ebots, self.ebot_vessels))
         for rows, vessels in (*pairs, (self.motorboats, self.motorboat_vessels)):
             if rows.size:
                 e = vessels.estimate(self.t)
@@ -175,7 +200,9 @@ class PhysicalBodies(KinematicBodies):
         thrust = np.zeros((b.size, 2))
         wheels = np.zeros((e.size, 2))
         boats = None
-        if b.size:
+        if self.buoy_shards is not None:
+            thrust = self.buoy_shards.command(wish_velocity[b], self.t, idle)
+        elif b.size:
             thrust = self.buoy_link.down(self.buoy_vessels.thrust(wish_velocity[b], self.t, idle=idle), self.t)
         if e.size:
             wheels = self.ebot_vessels.wheels(wish_velocity[e], wish_heading[e], self.t, idle=idle)
@@ -191,7 +218,9 @@ class PhysicalBodies(KinematicBodies):
     def _sense(self) -> None:
         """Sample the sensors at the new time; the readings go up the link to the vessels' estimators."""
         readings = self.physics.sense()
-        if "buoy" in readings:
+        if "buoy" in readings and self.buoy_shards is not None:
+            self.buoy_shards.sense(readings["buoy"], self.t)
+        elif "buoy" in readings:
             self.buoy_vessels.feed(self.buoy_link.up(readings["buoy"], self.t))
         if "ebot" in readings:
             self.ebot_vessels.feed(self.ebot_link.up(readings["ebot"], self.t))
