@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import itertools
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -125,3 +127,17 @@ def test_cli_refuses_no_vessel_process(tmp_path, capsys: pytest.CaptureFixture[s
     assert exit_info.value.code == 2
     assert "--vessel-processes: 0 is not at least 1" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_script_without_a_main_guard_is_told_what_to_change(tmp_path) -> None:
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "from sitl.experiments.scenario import load_scenario\n"
+        "from sitl.fleets.fleet import LockstepFleet\n"
+        "LockstepFleet(load_scenario('aggregation').with_overrides(fidelity='physics'), vessel_processes=2)\n"
+    )
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]
+    assert "VesselProcessError" in last and "while starting" in last
+    assert 'if __name__ == "__main__":' in last

@@ -189,30 +189,37 @@ class ShardedBuoys:
         lo, hi = self.ranges[0]
         self.local = BuoyShard(self._part(spec, lo, hi))
         for k in range(len(self.workers)):
-            self._answer(k)  # built
+            self._answer(k, starting=True)  # built
         self._estimate: tuple[float, PoseEstimate] | None = None
 
     @staticmethod
     def _part(spec: BuoyShardSpec, lo: int, hi: int) -> BuoyShardSpec:
         return dataclasses.replace(spec, first_row=spec.first_row + lo, max_thrust_n=spec.max_thrust_n[lo:hi])
 
-    def _gone(self, k: int, error: BaseException) -> VesselProcessError:
+    def _gone(self, k: int, error: BaseException, starting: bool = False) -> VesselProcessError:
         process, _ = self.workers[k]
         process.join(0.5)
         lo, hi = self.ranges[k + 1]
-        return VesselProcessError(
-            f"the worker process of buoys {lo}-{hi - 1} ended without answering (exit code {process.exitcode}; "
-            f"{error!r}): killed or out of memory? The run cannot go on without its vessels."
-        )
+        said = f"the worker process of buoys {lo}-{hi - 1} ended without answering (exit code {process.exitcode}; "
+        if starting:
+            self.close()
+            return VesselProcessError(
+                f"{said}{error!r}) while starting. A worker imports the script that started it again (Python's "
+                "'spawn'): a script that builds a fleet with vessel_processes > 1 must do so under "
+                '`if __name__ == "__main__":`, and cannot be read from standard input. Its error is printed above.'
+            )
+        return VesselProcessError(f"{said}{error!r}): killed, or out of memory? The run cannot go on without them.")
 
-    def _answer(self, k: int):
+    def _answer(self, k: int, starting: bool = False):
         _, conn = self.workers[k]
         try:
             status, value = conn.recv()
         except (EOFError, OSError) as error:
-            raise self._gone(k, error) from None
+            raise self._gone(k, error, starting) from None
         if status == "error":
             lo, hi = self.ranges[k + 1]
+            if starting:
+                self.close()
             raise VesselProcessError(f"the worker process of buoys {lo}-{hi - 1} failed:\n{value}")
         return value
 
