@@ -9,7 +9,7 @@ the most any speed-up of the MAVLink path alone could reach.
     python benchmarks/aggregation_speed.py [--seconds 300] [--profile] [--vessel-processes N]
 
 The physics run is also timed with the buoys' estimators, controllers and MAVLink links spread over N
-processes (sitl.vehicles.vessel_shards, default 2: the same results on two cores).
+processes (sitl.vehicles.vessel_shards; default 2 where there are two cores: the same results sooner).
 
 --profile also prints where a physics step's time goes (wall ms per step of
 each stage, over a further run of at most 60 simulated s).
@@ -30,6 +30,7 @@ from bob_autonomy.onboard.pipeline import BuoyPipeline
 from sitl.experiments.scenario import load_scenario
 from sitl.fleets.fleet import LockstepFleet
 from sitl.radio.medium import BroadcastMedium
+from sitl.row_threads import available_cores
 from sitl.vehicles import vehicle_transport
 from sitl.vehicles.mavlink_vehicle import SimulatedVehicle
 from sitl.vehicles.vehicle_physics import VehiclePhysics
@@ -122,9 +123,10 @@ def main() -> None:
     parser.add_argument(
         "--vessel-processes",
         type=int,
-        default=2,
+        default=min(2, available_cores()),
         metavar="N",
-        help="also time the physics run with the buoys' vessel side over N processes (default 2; 1: not)",
+        help="also time the physics run with the buoys' vessel side over N processes (default 2 where there are "
+        "2 cores; 1: not)",
     )
     args = parser.parse_args()
     physics, physics_ms, physics_cpu_ms = realtime_factor("physics", args.seconds)
