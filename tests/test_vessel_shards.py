@@ -76,9 +76,9 @@ def _run(name: str, processes: int, **overrides) -> tuple[dict, np.ndarray, np.n
     [
         ("aggregation", 2, {"agents": 20, "duration_s": 40.0}),
         # a buoy with 40 % thrust (its own limit in its range) and uneven ranges
-        ("leader-follower", 3, {"duration_s": 20.0}),
+        ("leader-follower", 3, {"duration_s": 10.0}),
         # buoys among motorboats: the buoys' rows and system ids are not the fleet's
-        ("aggregation-mixed", 2, {"duration_s": 20.0}),
+        ("aggregation-mixed", 2, {"duration_s": 10.0}),
     ],
 )
 def test_a_run_over_processes_is_the_same_bits(name: str, processes: int, overrides: dict) -> None:
