@@ -1,6 +1,7 @@
-"""bob_autonomy/control/buoy_mpc_batch.py: a fleet's buoy MPCs solved in one mapped call give, bit for bit, the
-commands each controller's own `solve` gives, over many steps (each command the next step's previous thrust),
-with weak batteries, vessels without thrust, non-finite inputs, and when the mapped call fails."""
+"""bob_autonomy/control/buoy_mpc_batch.py: a fleet's buoy MPCs solved together (mapped QP data, the unconstrained
+minimisers at once, the solver for the vessels with an active bound) give, bit for bit, the commands each
+controller's own `solve` gives, over many steps (each command the next step's previous thrust), with weak
+batteries, vessels without thrust, non-finite inputs, and when a vessel's solver fails."""
 
 from __future__ import annotations
 
@@ -11,7 +12,6 @@ import pytest
 
 from bob_autonomy.control.buoy_mpc_batch import BuoyMpcBatch
 from bob_autonomy.control.mpc import BuoyMpc
-from bob_autonomy.control.qp import _SolveError
 
 N = 12
 FIELDS = ("thrust_body_n", "thrust_world_n", "ok", "fallback", "status")
@@ -48,29 +48,38 @@ def test_the_batch_gives_each_vessel_what_its_own_solve_gives(seed: int) -> None
         results = batch.solve(desired, velocity, water, heading, limit)
         expected = [mpc.solve(desired[k], velocity[k], water[k], heading[k], limit[k]) for k, mpc in enumerate(alone)]
         assert_same(results, expected)
-    assert batch.calls == 30 and batch.unbatched == 0
+    assert batch.calls == 30
+    assert batch.interior > 0 and batch.solver_calls > 0  # both ways were taken (a limit of 12.5 N binds)
     for mine, theirs in zip(batch.controllers, alone, strict=True):
-        assert (mine.solves, mine.fallbacks) == (theirs.solves, theirs.fallbacks)
+        assert (mine.solves, mine.fallbacks, mine.interior_solves) == (
+            theirs.solves,
+            theirs.fallbacks,
+            theirs.interior_solves,
+        )
         np.testing.assert_array_equal(mine.last_plan_world_n, theirs.last_plan_world_n)
 
 
-def test_a_failed_mapped_call_solves_that_step_vessel_by_vessel(monkeypatch) -> None:
+def _never_interior(batch: BuoyMpcBatch, mpcs: list[BuoyMpc], k: int) -> None:
+    """Vessel k's QPs infeasible (its rate rows' lower bounds above their upper ones), in the batch's bounds and
+    in the controllers' own: never interior, and the solver fails."""
+    n_poly = mpcs[0]._n_poly
+    batch._lba[k, n_poly:] = 1e3
+    for mpc in (batch.controllers[k], mpcs[k]):
+        mpc._qp.inputs["lba"][n_poly:] = 1e3
+
+
+def test_a_failed_solve_gives_that_vessel_the_fallback_of_its_own_solve() -> None:
     rng = np.random.default_rng(11)
     batch, alone = BuoyMpcBatch(fleet()), fleet()
-    steps = [random_step(rng) for _ in range(6)]
-
-    def fail() -> None:
-        raise _SolveError("buoy_mpc_qp: simulated failure")
-
-    for k, (desired, velocity, water, heading, limit) in enumerate(steps):
-        if k == 3:
-            monkeypatch.setattr(batch, "_qp", fail)
-        elif k == 4:
-            monkeypatch.undo()
+    _never_interior(batch, alone, 3)
+    for _ in range(6):
+        desired, velocity, water, heading, limit = random_step(rng)
+        limit[3] = 45.0
         results = batch.solve(desired, velocity, water, heading, limit)
         expected = [mpc.solve(desired[i], velocity[i], water[i], heading[i], limit[i]) for i, mpc in enumerate(alone)]
         assert_same(results, expected)
-    assert (batch.calls, batch.unbatched) == (5, 1)
+        assert results[3].fallback and results[3].status.startswith("fallback: _SolveError: daqp")
+    assert batch.calls == 6 and batch.controllers[3].fallbacks == 6
 
 
 def test_only_controllers_that_can_share_a_call_are_batched() -> None:
@@ -124,19 +133,18 @@ def test_the_row_wise_polygon_and_rate_limit_are_the_controllers_own() -> None:
 def test_a_non_finite_plan_gives_that_vessel_the_fallback_of_its_own_solve(monkeypatch) -> None:
     rng = np.random.default_rng(5)
     batch, alone = BuoyMpcBatch(fleet()), fleet()
-    solve_mapped, solve_alone = batch._qp, alone[4]._solve_qp
-
-    def mapped_with_a_nan() -> None:
-        solve_mapped()
-        batch._x[4, 3] = np.nan
-
-    monkeypatch.setattr(batch, "_qp", mapped_with_a_nan)
-    monkeypatch.setattr(alone[4], "_solve_qp", lambda *args: solve_alone(*args) * np.nan)
+    _never_interior(batch, alone, 4)
+    for mpc in (batch.controllers[4], alone[4]):
+        monkeypatch.setattr(mpc, "_solve_qp", _nan_plan.__get__(mpc))
     for _ in range(3):
         desired, velocity, water, heading, limit = random_step(rng)
         limit[4] = 45.0
         results = batch.solve(desired, velocity, water, heading, limit)
         expected = [mpc.solve(desired[k], velocity[k], water[k], heading[k], limit[k]) for k, mpc in enumerate(alone)]
         assert_same(results, expected)
-        assert results[4].fallback
+        assert results[4].fallback and "non-finite" in results[4].status
     assert batch.controllers[4].fallbacks == 3
+
+
+def _nan_plan(self, *_args) -> np.ndarray:
+    return np.full((self.horizon, 2), np.nan)

@@ -1,25 +1,23 @@
-"""A fleet's buoy MPCs solved together: per step, one call of the QP-data Function and one of the DAQP conic,
-both mapped over the vessels with casadi's `Function.map`, instead of two calls per vessel.
+"""A fleet's buoy MPCs solved together: per step, one call of the QP-data Function mapped over the vessels with
+casadi's `Function.map`, the unconstrained minimisers of all their QPs in one stacked numpy solve
+(`bob_autonomy.control.qp_interior`), and the solver (DAQP) only for the vessels whose minimiser breaks a bound.
 
-Why: in a lockstep fleet each of the 45 solves also paid the Python of its two casadi calls and of filling
-their buffers. `python benchmarks/mpc_batch.py` measured the mapped solve at 0.65 of the per-vessel one on
-random states (a block-diagonal QP was 16 times slower with OSQP and 680 with DAQP; casadi's "thread" map
-was faster alone but slowed the whole fleet step). In the 45-buoy `aggregation` fleet the controllers' share
-of a step fell from 7.5 to 6.3 ms (three alternating runs each): DAQP's own work is most of what remains.
+Why: in a lockstep fleet each of the 45 solves paid the Python of its two casadi calls and of filling their
+buffers; a mapped call of both cut that (`python benchmarks/mpc_batch.py`: 0.65 of the per-vessel time on random
+states; a block-diagonal QP was 16 times slower with OSQP and 680 with DAQP). What remained was DAQP's own set-up
+(about 19.4 M instructions per step, a quarter of a full-stack step), paid even by the 98 % of the QPs that no
+bound constrains: those now cost a row of a stacked linear solve.
 
-What stays the same: the fleet's inputs are made finite, and its commands limited and turned into the body
+What stays the same: each vessel gets, bit for bit, what its own `BuoyMpc.solve` gives it (tests/
+test_buoy_mpc_batch.py). The fleet's inputs are made finite, and its commands limited and turned into the body
 frames, row by row in numpy with the float operations of `BuoyMpc._prepare` and `_finish` (what needs math's
 functions, the polygon test of a point not well inside the inscribed circle and the heading's cos and sin, is
 done by them vessel by vessel); a vessel without thrust or with a non-finite plan goes through its own
-`_finish`. The mapped QP data are written with the same float operations as `BuoyMpc._solve_qp`, and DAQP
-plans from them are bit for bit the per-vessel ones (DAQP through casadi ignores the warm start). If any
-vessel's QP fails, the mapped call raises and that step is solved vessel by vessel, so every vessel gets what
-`solve` gives it. Only controllers that can share it are batched: one tuning (the same casadi Functions),
-DAQP, and no CPU-time budget (simulated time: a budget is per solve). `thrust` gives the commands as two
-(n, 2) arrays without a result object per vessel. On random states of 45 buoys the Python around the mapped
-call fell from about 5.1 to 1.1 M instructions per step (callgrind), the mapped call itself being about
-19.4 M (DAQP's setup, `update_M` most of it, and its solve; 32.0 M before the polygon's opposite sides were
-paired into two-sided rows, `mpc.polygon_rows`).
+`_finish`. The mapped QP data are written with the same float operations as `BuoyMpc._solve_qp`, the interior
+test gives each row what it gives one QP alone, and a vessel with an active bound is solved by its own
+controller's `_solve_qp` (a failure there is its own fallback). Only controllers that can share a call are
+batched: one tuning (the same casadi Functions), DAQP, and no CPU-time budget (simulated time: a budget is per
+solve). `thrust` gives the commands as two (n, 2) arrays without a result object per vessel.
 """
 
 from __future__ import annotations
@@ -45,17 +43,17 @@ class BuoyMpcBatch:
         first = self.controllers[0]
         n = len(self.controllers)
         self._data = _BufferedCall(first._data.function.map(n, "serial"))
-        self._qp = _BufferedCall(first._qp.function.map(n, "serial"), self._data.outputs, first.solver)
-        qp = self._qp.inputs
-        qp["a"][:] = np.resize(first._qp.inputs["a"], qp["a"].size)  # the constant constraint matrix, per vessel
         self._p = self._data.inputs["p"].reshape(n, -1)
-        self._lbx, self._ubx = qp["lbx"].reshape(n, -1), qp["ubx"].reshape(n, -1)
-        self._lba, self._uba = qp["lba"].reshape(n, -1), qp["uba"].reshape(n, -1)
+        self._h = self._data.outputs["h"].reshape(n, -1)
+        self._g = self._data.outputs["g"].reshape(n, -1)
+        qp = first._qp.inputs
+        self._lbx, self._ubx = np.zeros((n, qp["lbx"].size)), np.zeros((n, qp["ubx"].size))
+        self._lba, self._uba = np.zeros((n, qp["lba"].size)), np.zeros((n, qp["uba"].size))
         step = first.max_thrust_change_n / first.model.max_thrust_n
         self._lba[:, first._n_poly :], self._uba[:, first._n_poly :] = -step, step
-        self._x = self._qp.outputs["x"].reshape(n, -1)
-        self.calls = 0  # mapped calls made
-        self.unbatched = 0  # steps solved vessel by vessel after a mapped call failed
+        self.calls = 0  # steps solved together
+        self.interior = 0  # QPs whose unconstrained minimiser met every bound
+        self.solver_calls = 0  # QPs with an active bound, each handed to its controller's solver
 
     @staticmethod
     def fits(controllers: Sequence[BuoyMpc]) -> bool:
@@ -100,7 +98,7 @@ class BuoyMpcBatch:
         max_thrust_n: FloatArray,
     ) -> tuple[FloatArray, FloatArray, dict[int, MpcResult]]:
         """Body and world commands (n, 2) N, and the results of the vessels `BuoyMpc._finish` made alone (no
-        thrust, a non-finite plan, or all of them after a failed mapped call), by index.
+        thrust, a failed solve or a non-finite plan), by index.
 
         The fleet's inputs are made finite and its commands limited with the float operations of `_prepare` and
         `_finish`, row by row in numpy; what needs math's functions (`polygon_peak`, cos and sin of the heading)
@@ -115,26 +113,27 @@ class BuoyMpcBatch:
         previous = self._into_polygon(np.array([c._last_thrust for c in controllers]).reshape(n, 2), limit)
         solving = limit > 1e-9  # as _Call.solving
         self._write(desired, velocity, water, limit, previous, solving)
-        try:
-            self._data()
-            self._qp()
-        except _SolveError:  # one vessel's QP did not solve: each vessel as `solve` would, its own way
-            self.unbatched += 1
-            special = {
-                k: c._solve_call(self._call(k, desired, velocity, water, heading, limit, previous))
-                for k, c in enumerate(controllers)
-            }
-            world = np.array([special[k].thrust_world_n for k in range(n)])
-            return self._body(world, heading), world, special
-        self.calls += 1
+        self._data()
         first = controllers[0]
-        plans = (first.model.max_thrust_n * self._x).reshape(n, first.horizon, 2)
+        x, inside = first._interior.solve(self._h, self._g, self._lbx, self._ubx, self._lba, self._uba)
+        plans = (first.model.max_thrust_n * x).reshape(n, first.horizon, 2)
+        special: dict[int, MpcResult] = {}
+        for k in np.flatnonzero(solving & ~inside).tolist():  # a bound is active: this vessel's own solve
+            call = self._call(k, desired, velocity, water, heading, limit, previous)
+            try:
+                plans[k] = controllers[k]._solve_qp(call.desired, call.velocity, call.water, call.limit, call.previous)
+            except Exception as error:  # as `_solve_call`: the vessel gets its own fallback
+                special[k] = controllers[k]._finish(call, error, 0.0)
+        self.interior += int(np.count_nonzero(solving & inside))
+        self.solver_calls += int(np.count_nonzero(solving & ~inside))
+        self.calls += 1
         # A row of finite entries each below 1e300 in size has a finite sum (what `_solve_call` checks); only the
         # other rows need their sum.
         flat = plans.reshape(n, -1)
         finite = np.isfinite(flat).all(axis=1) & (np.abs(flat).max(axis=1) < 1e300)
-        special = {}
         for k in np.flatnonzero(~(solving & finite)).tolist():
+            if k in special:
+                continue
             call = self._call(k, desired, velocity, water, heading, limit, previous)
             if not solving[k]:
                 outcome: FloatArray | Exception | None = None
@@ -144,11 +143,12 @@ class BuoyMpcBatch:
                 outcome = _SolveError("non-finite solution")
             special[k] = controllers[k]._finish(call, outcome, 0.0)
         world = self._within_limits(plans[:, 0, :], previous, limit)
-        for k, c, plan, pair in zip(range(n), controllers, plans, world.tolist(), strict=True):
+        for k, c, plan, pair, free in zip(range(n), controllers, plans, world.tolist(), inside.tolist(), strict=True):
             if k in special:
                 world[k] = special[k].thrust_world_n
             else:  # what _finish keeps of a solved plan
                 c.solves += 1
+                c.interior_solves += free
                 c.last_plan_world_n = plan
                 c._last_thrust = (pair[0], pair[1])
         return self._body(world, heading), world, special

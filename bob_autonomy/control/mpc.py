@@ -104,6 +104,7 @@ from bob_autonomy.control.qp import (
     _SolveError,
     default_qp_plugin,
 )
+from bob_autonomy.control.qp_interior import InteriorMinimiser
 from bob_autonomy.control.velocity_control import BuoyModel
 from bob_autonomy.core.arrays import FloatArray
 
@@ -270,6 +271,7 @@ class BuoyMpc:
         self._rows_per_step = len(row_normals)
         self.solves = 0
         self.fallbacks = 0
+        self.interior_solves = 0  # QPs whose unconstrained minimiser met every bound (no solver call)
         self.last_plan_world_n: FloatArray | None = None
         self._last_thrust: Pair = (0.0, 0.0)
         self._bounds_limit = math.nan
@@ -294,6 +296,13 @@ class BuoyMpc:
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         qp = self._qp.inputs
         qp["a"][:] = constraint_values
+        # DAQP only: its plan depends on the QP alone (through casadi it ignores the warm start); OSQP and qpOASES
+        # keep state from solve to solve, which a skipped call would change.
+        self._interior = (
+            InteriorMinimiser(data.sparsity_out("h"), conic.sparsity_in("a"), constraint_values)
+            if self.solver == "daqp"
+            else None
+        )
         n_poly = self._rows_per_step * self.horizon
         qp["lba"][n_poly:] = -self.max_thrust_change_n / self.model.max_thrust_n
         qp["uba"][n_poly:] = self.max_thrust_change_n / self.model.max_thrust_n
@@ -340,14 +349,33 @@ class BuoyMpc:
         step = self.max_thrust_change_n / scale
         lbx[0], lbx[1] = max(-box, prev_x - step), max(-box, prev_y - step)
         ubx[0], ubx[1] = min(box, prev_x + step), min(box, prev_y + step)
+        x = out["x"]
+        if self._interior is not None and self._take_interior(x):
+            return (scale * x).reshape(self.horizon, 2)
         # Warm start: the previous plan shifted by one step (the last step repeated), and its multipliers.
-        x, x0 = out["x"], qp["x0"]
+        x0 = qp["x0"]
         x0[:-2] = x[2:]
         x0[-2:] = x[-2:]
         qp["lam_x0"][:] = out["lam_x"]
         qp["lam_a0"][:] = out["lam_a"]
         self._qp()  # raises _SolveError when not solved
         return (scale * x).reshape(self.horizon, 2)
+
+    def _take_interior(self, x: FloatArray) -> bool:
+        """Whether the QP in the solver's inputs has its unconstrained minimiser inside every bound (no bound
+        active: that point is its solution, bob_autonomy.control.qp_interior); if so it is written into x (and
+        zero multipliers into the solver's outputs) and counted."""
+        qp, out = self._qp.inputs, self._qp.outputs
+        plan, inside = self._interior.solve(
+            qp["h"][None], qp["g"][None], qp["lbx"][None], qp["ubx"][None], qp["lba"][None], qp["uba"][None]
+        )
+        if not inside[0]:
+            return False
+        x[:] = plan[0]
+        out["lam_x"][:] = 0.0
+        out["lam_a"][:] = 0.0
+        self.interior_solves += 1
+        return True
 
     def polygon_peak(self, x: float, y: float) -> float:
         """max over the polygon's unit normals of normal . (x, y): (x, y) is inside iff <= limit * inradius_ratio."""
