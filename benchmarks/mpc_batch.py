@@ -1,5 +1,5 @@
-"""The 45 buoy MPC solves of one lockstep step: one by one (today), through casadi's `map`, or as one
-block-diagonal QP (issue 13 asks which pays).
+"""The 45 buoy MPC solves of one lockstep step: one by one, through casadi's `map`, as one block-diagonal QP
+(issue 13 asks which pays), or as a lockstep fleet solves them today: the unconstrained minimisers first.
 
 Every option solves the same QPs: 45 `BuoyMpc` controllers of one tuning (dt 0.5 s, horizon 10, 16-sided
 thrust polygon), at --steps seeded random states per vessel (velocity, desired velocity, water velocity,
@@ -14,9 +14,12 @@ thrust limit 20-45 N). Timed per step of 45 solves (median over the steps, ms):
     map_thread   the same with casadi's "thread" map over 2 threads
     block_osqp   one QP of 900 variables, the 45 blocks on the diagonal, solved by OSQP (sparse)
     block_daqp   the same by DAQP (dense; --block-steps steps only)
+    interior     the data Function mapped, the 45 unconstrained minimisers in one stacked solve, and the DAQP
+                 conic for those that break a bound (bob_autonomy.control.qp_interior, what BuoyMpcBatch does)
 
-The mapped plans are checked equal to the per-vessel plans bit for bit (the same solver on the same data);
-the block-diagonal ones are reported as their largest difference from them (N).
+The references `solve` and `calls` always call DAQP (the controllers' interior path switched off). The mapped
+plans are checked equal to theirs bit for bit (the same solver on the same data); the block-diagonal and
+interior ones are reported as their largest difference from them (N), with the interior share of the QPs.
 
     python benchmarks/mpc_batch.py [--steps 100] [--block-steps 2] [--seed 3]
 """
@@ -35,6 +38,7 @@ import numpy as np
 
 from bob_autonomy.control.mpc import BuoyMpc, _buoy_qp_functions
 from bob_autonomy.control.qp import _PLUGIN_OPTIONS, _BufferedCall
+from bob_autonomy.control.qp_interior import InteriorMinimiser
 
 VESSELS = 45
 
@@ -130,6 +134,33 @@ def mapped(mpc: BuoyMpc, data: ca.Function, conic: ca.Function, values: np.ndarr
     return step
 
 
+def interior_first(mpc: BuoyMpc, data: ca.Function, conic: ca.Function, values: np.ndarray, share: list) -> Callable:
+    """What BuoyMpcBatch does: minimisers at once, DAQP (one vessel's conic) for those breaking a bound. `share`
+    collects the interior fraction of each step."""
+    data_call = _BufferedCall(data.map(VESSELS, "serial"))
+    bounds = _BufferedCall(conic.map(VESSELS, "serial"), data_call.outputs)  # its arrays only hold the bounds
+    batch = Batch(mpc, data_call, bounds, values)
+    one = _BufferedCall(conic)
+    one.inputs["a"][:] = values
+    minimiser = InteriorMinimiser(data.sparsity_out("h"), conic.sparsity_in(conic.index_in("a")), values)
+
+    def step(state: np.ndarray) -> np.ndarray:
+        batch.write(state)
+        data_call()
+        h, g = data_call.outputs["h"].reshape(VESSELS, -1), data_call.outputs["g"].reshape(VESSELS, -1)
+        x, inside = minimiser.solve(h, g, batch.lbx, batch.ubx, batch.lba, batch.uba)
+        for k in np.flatnonzero(~inside).tolist():
+            for name, rows in (("h", h), ("g", g), ("lbx", batch.lbx), ("ubx", batch.ubx), ("lba", batch.lba),
+                               ("uba", batch.uba)):  # fmt: skip
+                one.inputs[name][:] = rows[k]
+            one()
+            x[k] = one.outputs["x"]
+        share.append(float(inside.mean()))
+        return x
+
+    return step
+
+
 def block_diagonal(mpc: BuoyMpc, data: ca.Function, conic: ca.Function, values: np.ndarray, plugin: str) -> Callable:
     hessian = ca.diagcat(*[data.sparsity_out(0)] * VESSELS)
     constraints = ca.diagcat(*[conic.sparsity_in(conic.index_in("a"))] * VESSELS)
@@ -157,6 +188,8 @@ def main() -> None:
     args = parser.parse_args()
     states = random_states(args.steps, args.seed)
     mpcs = [BuoyMpc(time_budget_s=math.inf) for _ in range(VESSELS)]
+    for mpc in mpcs:
+        mpc._interior = None  # the references call DAQP for every QP
     m = mpcs[0]
     tuning = (m.model, m.dt_s, m.horizon, m.polygon_sides, m.tracking_weight, m.input_change_weight, m.solver)
     _, data, conic, values = _buoy_qp_functions(*tuning)
@@ -175,10 +208,17 @@ def main() -> None:
         checks[name] = m.model.max_thrust_n * max(
             float(np.max(np.abs(a - b))) for a, b in zip(plans, reference, strict=False)
         )
+    share: list[float] = []
+    ms["interior"], plans = timed(interior_first(m, data, conic, values, share), states)
+    checks["interior"] = m.model.max_thrust_n * max(
+        float(np.max(np.abs(a - b))) for a, b in zip(plans, reference, strict=True)
+    )
     for name, value in ms.items():
         print(f"{name:>11}: {value:8.2f} ms per step of {VESSELS} solves ({value / ms['solve']:.2f} x solve())")
     print(f"mapped plans equal to the per-vessel ones: {checks['map_serial'] == checks['map_thread'] == 0.0}")
-    print(json.dumps({"benchmark": "mpc_batch", "vessels": VESSELS, "ms_per_step": ms, "max_difference": checks}))
+    print(f"interior: {100 * statistics.mean(share):.1f} % of the QPs had no active bound")
+    figures = {"ms_per_step": ms, "max_difference": checks, "interior_share": statistics.mean(share)}
+    print(json.dumps({"benchmark": "mpc_batch", "vessels": VESSELS, **figures}))
 
 
 if __name__ == "__main__":
