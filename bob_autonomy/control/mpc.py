@@ -104,7 +104,7 @@ from bob_autonomy.control.qp import (
     _SolveError,
     default_qp_plugin,
 )
-from bob_autonomy.control.qp_interior import InteriorMinimiser
+from bob_autonomy.control.qp_interior import InteriorMinimiser, take_interior
 from bob_autonomy.control.velocity_control import BuoyModel
 from bob_autonomy.core.arrays import FloatArray
 
@@ -350,7 +350,8 @@ class BuoyMpc:
         lbx[0], lbx[1] = max(-box, prev_x - step), max(-box, prev_y - step)
         ubx[0], ubx[1] = min(box, prev_x + step), min(box, prev_y + step)
         x = out["x"]
-        if self._interior is not None and self._take_interior(x):
+        if self._interior is not None and take_interior(self._interior, qp, out):
+            self.interior_solves += 1
             return (scale * x).reshape(self.horizon, 2)
         # Warm start: the previous plan shifted by one step (the last step repeated), and its multipliers.
         x0 = qp["x0"]
@@ -360,22 +361,6 @@ class BuoyMpc:
         qp["lam_a0"][:] = out["lam_a"]
         self._qp()  # raises _SolveError when not solved
         return (scale * x).reshape(self.horizon, 2)
-
-    def _take_interior(self, x: FloatArray) -> bool:
-        """Whether the QP in the solver's inputs has its unconstrained minimiser inside every bound (no bound
-        active: that point is its solution, bob_autonomy.control.qp_interior); if so it is written into x (and
-        zero multipliers into the solver's outputs) and counted."""
-        qp, out = self._qp.inputs, self._qp.outputs
-        plan, inside = self._interior.solve(
-            qp["h"][None], qp["g"][None], qp["lbx"][None], qp["ubx"][None], qp["lba"][None], qp["uba"][None]
-        )
-        if not inside[0]:
-            return False
-        x[:] = plan[0]
-        out["lam_x"][:] = 0.0
-        out["lam_a"][:] = 0.0
-        self.interior_solves += 1
-        return True
 
     def polygon_peak(self, x: float, y: float) -> float:
         """max over the polygon's unit normals of normal . (x, y): (x, y) is inside iff <= limit * inradius_ratio."""

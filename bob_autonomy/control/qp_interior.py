@@ -59,3 +59,16 @@ class InteriorMinimiser:
         rows = np.einsum("kj,ij->ki", x, self.constraint_matrix)
         inside = (lbx <= x).all(axis=1) & (x <= ubx).all(axis=1) & (lba <= rows).all(axis=1) & (rows <= uba).all(axis=1)
         return x, inside
+
+
+def take_interior(minimiser: InteriorMinimiser, inputs: dict[str, FloatArray], outputs: dict[str, FloatArray]) -> bool:
+    """Whether the one QP in a conic's `inputs` (h, g, lbx, ubx, lba, uba nonzeros) has its unconstrained minimiser
+    inside every bound; if so that point is written into `outputs["x"]` and zero multipliers into lam_x and
+    lam_a, as the solver would have left them."""
+    plan, inside = minimiser.solve(*(inputs[name][None] for name in ("h", "g", "lbx", "ubx", "lba", "uba")))
+    if not inside[0]:
+        return False
+    outputs["x"][:] = plan[0]
+    outputs["lam_x"][:] = 0.0
+    outputs["lam_a"][:] = 0.0
+    return True
