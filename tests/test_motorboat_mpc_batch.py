@@ -1,8 +1,7 @@
-"""bob_autonomy/control/motorboat_mpc_batch.py: a fleet's motorboat MPCs solved together (mapped QP data and plan
-speeds, the unconstrained minimisers at once, the solver for the boats with an active bound) give, bit for bit,
-the commands each controller's own `solve` gives, over many steps (each command the next step's previous one,
-each plan the next linearisation point), with boats holding, weak batteries, non-finite inputs, when a boat's
-solve fails and when a mapped call fails."""
+"""bob_autonomy/control/motorboat_mpc_batch.py: a fleet's motorboat MPCs solved in one mapped call give, bit for
+bit, the commands each controller's own `solve` gives, over many steps (each command the next step's previous
+one, each plan the next linearisation point), with boats holding, weak batteries, non-finite inputs, and when
+the mapped call fails."""
 
 from __future__ import annotations
 
@@ -73,8 +72,6 @@ def test_the_batch_gives_each_boat_what_its_own_solve_gives(seed: int, model: Mo
         assert_same(batch.solve(*args, t_s), alone_commands(alone, args, t_s))
         assert_same_state(batch, alone)
     assert batch.unbatched == 0 and 30 <= batch.calls <= 40
-    assert batch.interior > 0 and batch.solver_calls > 0  # both ways were taken
-    assert [c.interior_solves for c in batch.controllers] == [c.interior_solves for c in alone]
 
 
 def test_a_step_where_every_boat_holds_solves_nothing() -> None:
@@ -90,11 +87,11 @@ def test_a_failed_mapped_call_solves_that_step_boat_by_boat(monkeypatch) -> None
     steps = [random_step(rng) for _ in range(8)]
 
     def fail() -> None:
-        raise _SolveError("motorboat_mpc_qp_data: simulated failure")
+        raise _SolveError("motorboat_mpc_qp: simulated failure")
 
     for k, args in enumerate(steps):
         if k == 3:
-            monkeypatch.setattr(batch, "_data", fail)
+            monkeypatch.setattr(batch, "_qp", fail)
         elif k == 5:
             monkeypatch.undo()
         assert_same(batch.solve(*args, 0.5 * k), alone_commands(alone, args, 0.5 * k))
@@ -102,35 +99,16 @@ def test_a_failed_mapped_call_solves_that_step_boat_by_boat(monkeypatch) -> None
     assert batch.unbatched == 2 and batch.calls == 6
 
 
-def _never_interior(batch: MotorboatMpcBatch, boats: list[MotorboatMpc], k: int) -> None:
-    """Boat k's QPs infeasible (its change rows' lower bounds above their upper ones), in the batch's bounds and in
-    the controllers' own: never interior, and the solver fails."""
-    batch._lba[k] = 1e3
-    for mpc in boats:
-        mpc._qp.inputs["lba"][:] = 1e3
-
-
-def test_a_failed_solve_gives_that_boat_the_fallback_of_its_own_solve() -> None:
-    rng = np.random.default_rng(12)
-    batch, alone = MotorboatMpcBatch(fleet()), fleet()
-    _never_interior(batch, [batch.controllers[2], alone[2]], 2)
-    fell_back = 0
-    for k in range(6):
-        args = random_step(rng)
-        commands = batch.solve(*args, 0.5 * k)
-        assert_same(commands, alone_commands(alone, args, 0.5 * k))
-        assert_same_state(batch, alone)
-        fell_back += commands[2].fallback
-    assert fell_back >= 4 and batch.controllers[2].fallbacks == fell_back  # whenever it did not hold
-
-
-def test_a_non_finite_plan_falls_back_for_that_boat_only(monkeypatch) -> None:
+def test_a_non_finite_plan_falls_back_for_that_boat_only() -> None:
     batch, alone = MotorboatMpcBatch(fleet(3)), fleet(3)
     go = (np.array([[1.5, 0.0]] * 3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3), np.zeros(3), np.ones(3))
-    batch._lba[1] = 1e3  # boat 1's own solve, which gives NaN
-    monkeypatch.setattr(
-        batch.controllers[1], "_solve_qp", lambda *args: np.full((batch.controllers[1].horizon, 2), np.nan)
-    )
+    real_qp = batch._qp
+
+    def poisoned() -> None:
+        real_qp()
+        batch._x[1, 0] = np.nan
+
+    batch._qp = poisoned
     commands = batch.solve(*go, 0.0)
     assert [c.fallback for c in commands] == [False, True, False]
     assert "non-finite" in commands[1].status and batch.controllers[1].last_plan is None

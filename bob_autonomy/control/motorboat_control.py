@@ -84,7 +84,6 @@ import casadi as ca
 import numpy as np
 
 from bob_autonomy.control.qp import _BufferedCall, _conic, _cpu_over_budget, _SolveError, default_qp_plugin
-from bob_autonomy.control.qp_interior import InteriorMinimiser, take_interior
 from bob_autonomy.core.arrays import FloatArray
 
 logger = logging.getLogger("bob_autonomy.control.motorboat_control")
@@ -457,14 +456,6 @@ class MotorboatMpc:
         self._qp = _BufferedCall(conic, self._data.outputs, self.solver)
         self._qp.inputs["a"][:] = constraint_values
         self._qp.inputs["lba"][:], self._qp.inputs["uba"][:] = _change_row_bounds(self.model, self.step_s, self.horizon)
-        # A QP no bound constrains is solved by its unconstrained minimiser (bob_autonomy.control.qp_interior; DAQP
-        # only, whose plan depends on the QP alone).
-        self.interior_solves = 0
-        self._interior = (
-            InteriorMinimiser(data.sparsity_out("h"), conic.sparsity_in("a"), constraint_values)
-            if self.solver == "daqp"
-            else None
-        )
         self._solve_qp(0.0, 0.0, 0.5, 1.0, (-0.5, 1.0))  # warm-up: the first real call is not the slow one
         self.reset()
 
@@ -494,10 +485,7 @@ class MotorboatMpc:
         lbx[n:], ubx[n:] = -1.0, 1.0
         step = self.model.steering_slew_per_s * self.step_s
         lbx[n], ubx[n] = max(-1.0, self._previous[1] - step), min(1.0, self._previous[1] + step)
-        if self._interior is not None and take_interior(self._interior, qp, out):
-            self.interior_solves += 1
-        else:
-            self._qp()  # raises _SolveError when not solved
+        self._qp()  # raises _SolveError when not solved
         x = out["x"]
         return np.column_stack((x[:n], x[n:]))
 

@@ -1,21 +1,16 @@
-"""A fleet's motorboat MPCs solved together: per step one call each of the QP-data Function and the plan-speeds
-Function, both mapped over the boats with casadi's `Function.map`, the unconstrained minimisers of all the QPs in
-one stacked numpy solve (`bob_autonomy.control.qp_interior`), and the solver (DAQP) only for the boats whose
-minimiser breaks a bound.
+"""A fleet's motorboat MPCs solved together: per step one call each of the QP-data Function, the DAQP conic and
+the plan-speeds Function, all mapped over the boats with casadi's `Function.map`, instead of three per boat.
 
 Why: in a lockstep fleet of 45 motorboats the controllers took about 45 % of a direct-link step
 (`aggregation-motorboats`, cProfile), and about two thirds of that was the Python around each boat's three
-casadi calls and the filling of their buffers, not the solver (docs/performance.md, "Motorboats"). Of what
-remained, most was DAQP's set-up, paid even by the QPs no bound constrains (84 % of them in
-`aggregation-motorboats`, 70 % in `leader-follower-motorboats`).
+casadi calls and the filling of their buffers, not the solver (docs/performance.md, "Motorboats").
 
 What stays the same: each controller makes its references and its command exactly as `MotorboatMpc.solve`
 does (`_prepare`, `_finish`); the mapped QP data are written with the values `MotorboatMpc._solve_qp` writes,
-the interior test gives each row what it gives one QP alone, and a boat with an active bound is solved by its
-own `_solve_qp`, so the plans, the next linearisation points and the commands are the per-boat ones bit for
-bit (tests/test_motorboat_mpc_batch.py). A boat whose solve fails gets its own fallback; if a mapped call
-fails, that step is solved boat by boat. Only controllers that can share the calls are batched: one model and
-tuning (the same casadi Functions), DAQP, and no CPU-time budget (simulated time).
+so the plans, the next linearisation points and the commands are the per-boat ones bit for bit
+(tests/test_motorboat_mpc_batch.py). If the mapped call fails (one boat's QP not solved), that step is
+solved boat by boat, so every boat gets what `solve` gives it. Only controllers that can share the call are
+batched: one model and tuning (the same casadi Functions), DAQP, and no CPU-time budget (simulated time).
 """
 
 from __future__ import annotations
@@ -51,21 +46,22 @@ class MotorboatMpcBatch:
         first = self.controllers[0]
         n = len(self.controllers)
         self._data = _BufferedCall(first._data.function.map(n, "serial"))
+        self._qp = _BufferedCall(first._qp.function.map(n, "serial"), self._data.outputs, first.solver)
         self._speeds = _BufferedCall(first._speeds.function.map(n, "serial"))
+        qp = self._qp.inputs
+        qp["a"][:] = np.resize(first._qp.inputs["a"], qp["a"].size)  # the constant constraint matrix, per boat
         self._step = first.model.steering_slew_per_s * first.step_s  # steering change per plan step, at most
-        qp = first._qp.inputs
         # The change rows' bounds (steering, then thrust with a throttle slew), per boat.
-        self._lba, self._uba = np.tile(qp["lba"], (n, 1)), np.tile(qp["uba"], (n, 1))
+        qp["lba"][:] = np.resize(first._qp.inputs["lba"], qp["lba"].size)
+        qp["uba"][:] = np.resize(first._qp.inputs["uba"], qp["uba"].size)
         self._p = self._data.inputs["p"].reshape(n, -1)
-        self._h, self._g = self._data.outputs["h"].reshape(n, -1), self._data.outputs["g"].reshape(n, -1)
-        self._lbx, self._ubx = np.zeros((n, qp["lbx"].size)), np.zeros((n, qp["ubx"].size))
+        self._lbx, self._ubx = qp["lbx"].reshape(n, -1), qp["ubx"].reshape(n, -1)
+        self._x = self._qp.outputs["x"].reshape(n, -1)
         self._throttles = self._speeds.inputs["i0"].reshape(n, -1)
         self._u0 = self._speeds.inputs["i1"]
         self._planned = self._speeds.outputs["o0"].reshape(n, -1)
-        self.calls = 0  # steps solved together
+        self.calls = 0  # mapped calls made
         self.unbatched = 0  # steps solved boat by boat after a mapped call failed
-        self.interior = 0  # QPs whose unconstrained minimiser met every bound
-        self.solver_calls = 0  # QPs with an active bound, each handed to its boat's solver
 
     @staticmethod
     def fits(controllers: Sequence[MotorboatMpc]) -> bool:
@@ -96,28 +92,13 @@ class MotorboatMpcBatch:
         self._write(calls)
         try:
             self._data()
-        except _SolveError:  # one boat's QP data could not be made: each boat as `solve` would, its own way
-            return self._one_by_one(calls)
-        x, inside = controllers[0]._interior.solve(self._h, self._g, self._lbx, self._ubx, self._lba, self._uba)
-        failed: dict[int, Exception] = {}
-        solving = [k for k, call in enumerate(calls) if isinstance(call, _BoatCall)]
-        for k in solving:
-            if inside[k]:
-                continue
-            call = calls[k]
-            try:  # a bound is active: this boat's own solve
-                plan = controllers[k]._solve_qp(call.u0, call.r0, call.error, call.reference, call.bounds)
-            except Exception as error:  # as `_solve_call`: the boat gets its own fallback
-                failed[k] = error
-                continue
-            x[k] = plan.T.reshape(-1)  # (thrust..., steering...) as the solver's x
-        self.interior += int(inside[solving].sum())
-        self.solver_calls += len(solving) - int(inside[solving].sum())
-        self._throttles[:] = x[:, : x.shape[1] // 2]
-        try:
+            self._qp()
+            self._throttles[:] = self._x[:, : self._x.shape[1] // 2]
             self._speeds()
-        except _SolveError:
-            return self._one_by_one(calls)
+        except _SolveError:  # one boat's QP did not solve: each boat as `solve` would, its own way
+            self.unbatched += 1
+            return [call if isinstance(call, MotorboatCommand) else c._solve_call(call) for c, call in
+                    zip(controllers, calls, strict=True)]  # fmt: skip
         self.calls += 1
         horizon = controllers[0].horizon
         commands: list[MotorboatCommand] = []
@@ -125,24 +106,15 @@ class MotorboatMpcBatch:
             if isinstance(call, MotorboatCommand):
                 commands.append(call)
                 continue
-            if k in failed:
-                commands.append(c._finish(call, failed[k], 0.0))
-                continue
-            plan = np.column_stack((x[k, :horizon], x[k, horizon:]))  # as `MotorboatMpc._solve_qp` returns it
+            x = self._x[k]
+            plan = np.column_stack((x[:horizon], x[horizon:]))  # as `MotorboatMpc._solve_qp` returns it
             if not np.isfinite(plan).all():
                 commands.append(c._finish(call, _SolveError("non-finite solution"), 0.0))
                 continue
-            c.interior_solves += bool(inside[k])
             c.last_plan = plan
             c._bar[:] = self._planned[k]
             commands.append(c._finish(call, plan, 0.0))
         return commands
-
-    def _one_by_one(self, calls: list[MotorboatCommand | _BoatCall]) -> list[MotorboatCommand]:
-        """Each boat's command as its own `solve` makes it (a mapped call failed)."""
-        self.unbatched += 1
-        return [call if isinstance(call, MotorboatCommand) else c._solve_call(call) for c, call in
-                zip(self.controllers, calls, strict=True)]  # fmt: skip
 
     def _write(self, calls: list[MotorboatCommand | _BoatCall]) -> None:
         """The parameters and bounds of every boat's QP and the start speed of its plan, each value the one
