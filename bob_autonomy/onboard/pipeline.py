@@ -31,6 +31,7 @@ from bob_autonomy.estimation.antenna import antenna_offsets
 from bob_autonomy.estimation.gps_accuracy import AccuracyEnvelope
 from bob_autonomy.estimation.simple_estimator import AlphaBetaBuoyEstimator, OdometryEstimator, PoseEstimate
 from bob_autonomy.estimation.tilt import TiltTracker
+from bob_autonomy.onboard.imu_repeats import ImuRepeats
 from firmware_bridge.decoder import WheelDistance
 from firmware_bridge.readings import CompassReading, EncoderReading, GpsFix, ImuReading, SensorReadings
 
@@ -122,6 +123,7 @@ class BuoyPipeline:
         self.antenna_frd_m = np.zeros((n, 3))
         self.antenna_unplaced = 0  # fixes from an offset antenna that came with no attitude to place them by
         self.gps_accuracy = AccuracyEnvelope(n)  # the receivers' reported accuracies, held and let decay (EKF3)
+        self.imu_repeats = ImuRepeats(n)  # one IMU sample sent twice (RAW_IMU and SCALED_IMU) is fused once
 
     def limit_throttle(self, fraction: float) -> None:
         """Plan with at most `fraction` of full thrust from now on (the autopilot's MOT_THR_MAX was changed while
@@ -169,7 +171,8 @@ class BuoyPipeline:
     def feed(self, readings: SensorReadings | Iterable[object]) -> None:
         """Fuse readings (any order; each carries its measurement time and vessel rows). IMU readings are levelled
         with the hulls' attitude (`bob_autonomy.estimation.tilt`) from the compass readings that carry one."""
-        for reading in self._levelled(_flatten(readings)):  # in time order: nothing fused by replay that need not be
+        batch = [r if not isinstance(r, ImuReading) else self.imu_repeats.fresh(r) for r in _flatten(readings)]
+        for reading in self._levelled([r for r in batch if r is not None]):  # in time order (no needless replay)
             self._fuse(reading)
 
     def _fuse(self, reading: object) -> None:

@@ -1,0 +1,74 @@
+"""An IMU sample that reaches a vessel twice is fused once.
+
+ArduPilot puts the IMU's current sample in RAW_IMU (its RAW_SENS stream, 1 Hz by default) and in SCALED_IMU
+(which the vessel asks for), and when both go out in one loop they carry the same values (mG, mrad/s), sent
+microseconds apart; the simulated autopilot sends them at the same time. Both decode to an ImuReading, and an
+EKF that fused both would count one gyro measurement twice: in the 45-buoy `aggregation` fleet half of the
+samples were fused twice, an overconfident yaw rate. A row is a repeat when its values equal its agent's last
+IMU row exactly and it was taken within REPEAT_WINDOW_S of it (one loop of Rover's 50 Hz scheduler); repeats
+are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bob_autonomy.core.arrays import FloatArray
+from firmware_bridge.readings import ImuReading
+
+REPEAT_WINDOW_S = 0.02
+
+
+class ImuRepeats:
+    """The last IMU row of each of n agents, to drop a row that repeats it (module docstring)."""
+
+    def __init__(self, n: int) -> None:
+        self.last_t = np.full(n, -np.inf)
+        self.last_values = np.full((n, 6), np.nan)
+        self.dropped = 0  # rows dropped as repeats
+
+    def fresh(self, reading: ImuReading) -> ImuReading | None:
+        """The reading without the rows that repeat their agent's last IMU row (None when none is left)."""
+        agents = reading.agents
+        values = _values(reading)
+        if len(np.unique(agents)) < len(agents):  # an agent twice in one reading: row by row, in order
+            keep = np.array([self._keep(agents[i : i + 1], reading.t_s[i : i + 1], values[i : i + 1])[0]
+                             for i in range(len(agents))], dtype=bool)  # fmt: skip
+        else:
+            keep = self._keep(agents, reading.t_s, values)
+        if keep.all():
+            return reading
+        self.dropped += int(np.count_nonzero(~keep))
+        if not keep.any():
+            return None
+        return _rows(reading, keep)
+
+    def _keep(self, agents: np.ndarray, t_s: FloatArray, values: FloatArray) -> np.ndarray:
+        last = self.last_values[agents]
+        same = ((values == last) | (np.isnan(values) & np.isnan(last))).all(axis=1)
+        keep = ~(same & (np.abs(t_s - self.last_t[agents]) <= REPEAT_WINDOW_S))
+        self.last_t[agents[keep]] = t_s[keep]
+        self.last_values[agents[keep]] = values[keep]
+        return keep
+
+
+def _values(reading: ImuReading) -> FloatArray:
+    """(k, 6): accel x, y, gyro z, accel z, gyro x, y (NaN where the reading has no such field)."""
+    k = len(reading.agents)
+    accel_z = np.full(k, np.nan) if reading.accel_z_mps2 is None else reading.accel_z_mps2
+    gyro_xy = np.full((k, 2), np.nan) if reading.gyro_xy_radps is None else reading.gyro_xy_radps
+    return np.column_stack((reading.accel_body_mps2, reading.gyro_z_radps, accel_z, gyro_xy))
+
+
+def _rows(reading: ImuReading, keep: np.ndarray) -> ImuReading:
+    def pick(values):
+        return None if values is None else values[keep]
+
+    return ImuReading(
+        reading.agents[keep],
+        reading.t_s[keep],
+        reading.accel_body_mps2[keep],
+        reading.gyro_z_radps[keep],
+        pick(reading.accel_z_mps2),
+        pick(reading.gyro_xy_radps),
+    )
