@@ -8,7 +8,9 @@ was taken (s), so late and out-of-order readings can be handled by time.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -103,3 +105,17 @@ class LightReading:
     t_s: FloatArray
     side: IntArray
     intensity: FloatArray
+
+
+Reading = TypeVar("Reading")
+
+
+def rows_of(reading: Reading, keep: NDArray[np.bool_] | IntArray) -> Reading:
+    """The same kind of reading holding only the rows `keep` picks (a mask or indices) of every array field; a
+    field it does not have stays None."""
+    picked = {
+        f.name: (value[keep] if isinstance(value, np.ndarray) else value)
+        for f in dataclasses.fields(reading)
+        if (value := getattr(reading, f.name)) is not None
+    }
+    return type(reading)(**picked)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from bob_autonomy.core.arrays import FloatArray
-from firmware_bridge.readings import ImuReading
+from firmware_bridge.readings import ImuReading, rows_of
 
 REPEAT_WINDOW_S = 0.02
 
@@ -41,7 +41,7 @@ class ImuRepeats:
         self.dropped += int(np.count_nonzero(~keep))
         if not keep.any():
             return None
-        return _rows(reading, keep)
+        return rows_of(reading, keep)
 
     def _keep(self, agents: np.ndarray, t_s: FloatArray, values: FloatArray) -> np.ndarray:
         last = self.last_values[agents]
@@ -58,17 +58,3 @@ def _values(reading: ImuReading) -> FloatArray:
     accel_z = np.full(k, np.nan) if reading.accel_z_mps2 is None else reading.accel_z_mps2
     gyro_xy = np.full((k, 2), np.nan) if reading.gyro_xy_radps is None else reading.gyro_xy_radps
     return np.column_stack((reading.accel_body_mps2, reading.gyro_z_radps, accel_z, gyro_xy))
-
-
-def _rows(reading: ImuReading, keep: np.ndarray) -> ImuReading:
-    def pick(values):
-        return None if values is None else values[keep]
-
-    return ImuReading(
-        reading.agents[keep],
-        reading.t_s[keep],
-        reading.accel_body_mps2[keep],
-        reading.gyro_z_radps[keep],
-        pick(reading.accel_z_mps2),
-        pick(reading.gyro_xy_radps),
-    )

@@ -31,7 +31,7 @@ import numpy as np
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation.simple_estimator import PoseEstimate
 from bob_autonomy.onboard.pipeline import BuoyPipeline
-from firmware_bridge.readings import SensorReadings
+from firmware_bridge.readings import SensorReadings, rows_of
 from sitl.vehicles.mavlink_vehicle import BUOY
 from sitl.vehicles.vehicle_transport import DirectTransport, MavlinkTransport
 from sitl.world.world import FloatArray
@@ -104,14 +104,8 @@ def readings_of_rows(readings: SensorReadings, lo: int, hi: int) -> SensorReadin
         batch = getattr(readings, field.name)
         if batch is None:
             continue
-        keep = (batch.agents >= lo) & (batch.agents < hi)
-        picked = {
-            f.name: (value[keep] if isinstance(value, np.ndarray) else value)
-            for f in dataclasses.fields(batch)
-            if (value := getattr(batch, f.name)) is not None
-        }
-        picked["agents"] = picked["agents"] - lo
-        parts[field.name] = type(batch)(**picked)
+        part = rows_of(batch, (batch.agents >= lo) & (batch.agents < hi))
+        parts[field.name] = dataclasses.replace(part, agents=part.agents - lo)
     return SensorReadings(**parts)
 
 
