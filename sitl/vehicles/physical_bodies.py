@@ -19,16 +19,16 @@ from numpy.typing import NDArray
 from bob_autonomy.control.motorboat_control import MotorboatModel
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.estimation.simple_estimator import PoseEstimate
-from bob_autonomy.onboard.pipeline import BuoyPipeline, EbotPipeline, MotorboatPipeline
+from bob_autonomy.onboard.pipeline import EbotPipeline, MotorboatPipeline
 from sitl.vehicles.autopilot_params import parameter_default
 from sitl.vehicles.bodies import BODY_SPECS, EBOT_SONAR_ANGLES_RAD, KinematicBodies
 from sitl.vehicles.bodies import EBOT as EBOT_KIND
-from sitl.vehicles.mavlink_vehicle import BUOY, EBOT, MOTORBOAT
+from sitl.vehicles.mavlink_vehicle import EBOT, MOTORBOAT
 from sitl.vehicles.motorboat import MotorboatParams
 from sitl.vehicles.sensors import noisy_light, noisy_ranges
 from sitl.vehicles.vehicle_physics import PRE_ROLL_S, VehiclePhysics
 from sitl.vehicles.vehicle_transport import DirectTransport, MavlinkTransport
-from sitl.vehicles.vessel_shards import BuoyShardSpec, ShardedBuoys
+from sitl.vehicles.vessel_shards import BuoyShard, BuoyShardSpec, ShardedBuoys
 from sitl.world.environment import Environment
 from sitl.world.world import FloatArray, World
 
@@ -90,15 +90,17 @@ class PhysicalBodies(KinematicBodies):
         wheel_base, per_tick = self.ebot_params.wheel_base_m, p.metres_per_tick
         # Simulated time: an MPC solve is never too slow for it, so a loaded machine cannot change a run.
         options = {"estimator": estimator, "controller": controller, "dt_s": dt_s, "mpc_time_budget_s": math.inf}
-        # More than one process: the buoys' vessel side (estimators, controllers, links) spread over processes
-        # (sitl.vehicles.vessel_shards; the same results); buoy_vessels and buoy_link are then None.
-        self.buoy_shards: ShardedBuoys | None = None
+        # The buoys' vessel side (estimators, controllers, MAVLink links with their autopilots), in this process or
+        # spread over `vessel_processes` (sitl.vehicles.vessel_shards; the same results). In this process its
+        # pipeline and link are `buoy_vessels` and `buoy_link`; spread, those are None.
+        spec = BuoyShardSpec(0, self.max_thrust_n, frame, self.buoy_params.max_thrust_n, options, link, self.t)
+        self.buoy_side: BuoyShard | ShardedBuoys
         if vessel_processes > 1 and b.size > 1:
-            spec = BuoyShardSpec(0, self.max_thrust_n, frame, self.buoy_params.max_thrust_n, options, link, self.t)
-            self.buoy_shards = ShardedBuoys(spec, vessel_processes)
-            self.buoy_vessels = None
+            self.buoy_side = ShardedBuoys(spec, vessel_processes)
+            self.buoy_vessels, self.buoy_link = None, None
         else:
-            self.buoy_vessels = BuoyPipeline(b.size, frame, self.max_thrust_n, **options)
+            self.buoy_side = BuoyShard(spec)
+            self.buoy_vessels, self.buoy_link = self.buoy_side.pipeline, self.buoy_side.link
         # eBots start from a known pose (the paper's robots are told theirs) and dead-reckon from there. Over MAVLink
         # the simulated autopilot (a skid-steer rover) slews their throttle as it does a boat's, and they plan with it.
         ebot_slew = parameter_default(EBOT, "MOT_SLEWRATE") / 100.0 if link == "mavlink" else 0.0
@@ -129,9 +131,6 @@ class PhysicalBodies(KinematicBodies):
             def clock() -> float:  # the vessels stamp readings with the simulated time
                 return self.t
 
-            self.buoy_link = None
-            if self.buoy_shards is None:
-                self.buoy_link = MavlinkTransport(BUOY, b.size, self.buoy_params.max_thrust_n, clock)
             self.ebot_link = MavlinkTransport(
                 EBOT,
                 e.size,
@@ -144,9 +143,7 @@ class PhysicalBodies(KinematicBodies):
                 MOTORBOAT, m.size, 1.0, clock, first_system_id=b.size + e.size + 1, metres_per_tick=per_tick
             )
         elif link == "direct":
-            self.buoy_link = self.ebot_link = self.motorboat_link = DirectTransport()
-            if self.buoy_shards is not None:
-                self.buoy_link = None
+            self.ebot_link = self.motorboat_link = DirectTransport()
         else:
             raise ValueError(f"unknown vehicle link {link!r}; choose direct or mavlink")
         while self.t < -1e-9:
@@ -154,23 +151,17 @@ class PhysicalBodies(KinematicBodies):
 
     def close(self) -> None:
         """Stop the vessel worker processes, if any (a run's end; also done when the bodies are collected)."""
-        if self.buoy_shards is not None:
-            self.buoy_shards.close()
+        self.buoy_side.close()
 
     @property
     def mpc_fallbacks(self) -> int:
-        shards = 0 if self.buoy_shards is None else self.buoy_shards.status()[0]
-        vessels = (self.buoy_vessels, self.ebot_vessels, self.motorboat_vessels)
-        return shards + sum(v.mpc_fallbacks for v in vessels if v is not None)
+        return self.buoy_side.status()[0] + self.ebot_vessels.mpc_fallbacks + self.motorboat_vessels.mpc_fallbacks
 
     def link_counters(self) -> dict[str, int]:
         """MAVLink counters of the vehicles and vessels (empty for the direct link)."""
         totals: dict[str, int] = {}
-        transports = [t for t in (self.buoy_link, self.ebot_link, self.motorboat_link) if t is not None]
-        counted = [t.counters() for t in {id(t): t for t in transports}.values()]
-        if self.buoy_shards is not None:
-            counted.append(self.buoy_shards.status()[1])
-        for counters in counted:
+        counted = [t.counters() for t in {id(t): t for t in (self.ebot_link, self.motorboat_link)}.values()]
+        for counters in (self.buoy_side.status()[1], *counted):
             for name, value in counters.items():
                 totals[name] = totals.get(name, 0) + value
         if self.motorboats.size:  # wishes a motorboat could not follow (turn in place, move sideways): said, counted
@@ -185,8 +176,7 @@ class PhysicalBodies(KinematicBodies):
     def _estimate(self) -> PoseEstimate:
         n = len(self)
         out = PoseEstimate(np.full((n, 2), np.nan), np.zeros((n, 2)), np.full(n, np.nan))
-        buoys = self.buoy_shards if self.buoy_vessels is None else self.buoy_vessels
-        pairs = ((self.buoys, buoys), (self.ebots, self.ebot_vessels))
+        pairs = ((self.buoys, self.buoy_side), (self.ebots, self.ebot_vessels))
         for rows, vessels in (*pairs, (self.motorboats, self.motorboat_vessels)):
             if rows.size:
                 e = vessels.estimate(self.t)
@@ -200,10 +190,8 @@ class PhysicalBodies(KinematicBodies):
         thrust = np.zeros((b.size, 2))
         wheels = np.zeros((e.size, 2))
         boats = None
-        if self.buoy_shards is not None:
-            thrust = self.buoy_shards.command(wish_velocity[b], self.t, idle)
-        elif b.size:
-            thrust = self.buoy_link.down(self.buoy_vessels.thrust(wish_velocity[b], self.t, idle=idle), self.t)
+        if b.size:
+            thrust = self.buoy_side.command(wish_velocity[b], self.t, idle)
         if e.size:
             wheels = self.ebot_vessels.wheels(wish_velocity[e], wish_heading[e], self.t, idle=idle)
             wheels = self.ebot_link.down(wheels, self.t)
@@ -218,10 +206,8 @@ class PhysicalBodies(KinematicBodies):
     def _sense(self) -> None:
         """Sample the sensors at the new time; the readings go up the link to the vessels' estimators."""
         readings = self.physics.sense()
-        if "buoy" in readings and self.buoy_shards is not None:
-            self.buoy_shards.sense(readings["buoy"], self.t)
-        elif "buoy" in readings:
-            self.buoy_vessels.feed(self.buoy_link.up(readings["buoy"], self.t))
+        if "buoy" in readings:
+            self.buoy_side.sense(readings["buoy"], self.t)
         if "ebot" in readings:
             self.ebot_vessels.feed(self.ebot_link.up(readings["ebot"], self.t))
         if "motorboat" in readings:

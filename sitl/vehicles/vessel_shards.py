@@ -83,10 +83,14 @@ class BuoyShard:
         self.t = t_s
         return self.link.down(self.pipeline.thrust(wish_mps, t_s, idle=idle), t_s)
 
-    def sense(self, readings: SensorReadings, t_s: float) -> PoseEstimate:
-        """Send the readings up the link into the estimators; returns the estimates at t_s."""
+    def sense(self, readings: SensorReadings, t_s: float) -> None:
+        """Send the readings up the link into the estimators."""
         self.t = t_s
         self.pipeline.feed(self.link.up(readings, t_s))
+
+    def sensed(self, readings: SensorReadings, t_s: float) -> PoseEstimate:
+        """`sense`, then the estimates at t_s (what a worker answers, so the fleet needs no second round trip)."""
+        self.sense(readings, t_s)
         return self.pipeline.estimate(t_s)
 
     def estimate(self, t_s: float) -> PoseEstimate:
@@ -95,6 +99,9 @@ class BuoyShard:
     def status(self) -> tuple[int, dict[str, int]]:
         """(MPC fallbacks, the link's counters)."""
         return self.pipeline.mpc_fallbacks, self.link.counters()
+
+    def close(self) -> None:
+        """Nothing to release: the shard lives in this process (as `ShardedBuoys.close`)."""
 
 
 def readings_of_rows(readings: SensorReadings, lo: int, hi: int) -> SensorReadings:
@@ -249,7 +256,7 @@ class ShardedBuoys:
     def sense(self, readings: SensorReadings, t_s: float) -> PoseEstimate:
         (lo, hi), rest = self.ranges[0], self.ranges[1:]
         args = [(readings_of_rows(readings, a, b), t_s) for a, b in rest]
-        parts = self._ask_all("sense", args, lambda: self.local.sense(readings_of_rows(readings, lo, hi), t_s))
+        parts = self._ask_all("sensed", args, lambda: self.local.sensed(readings_of_rows(readings, lo, hi), t_s))
         estimate = _joined(parts)
         self._estimate = (t_s, estimate)
         return estimate
