@@ -1,12 +1,19 @@
 """An IMU sample that reaches a vessel twice is fused once.
 
 ArduPilot puts the IMU's current sample in RAW_IMU (its RAW_SENS stream, 1 Hz by default) and in SCALED_IMU
-(which the vessel asks for), and when both go out in one loop they carry the same values (mG, mrad/s), sent
-microseconds apart; the simulated autopilot sends them at the same time. Both decode to an ImuReading, and an
-EKF that fused both would count one gyro measurement twice: in the 45-buoy `aggregation` fleet half of the
-samples were fused twice, an overconfident yaw rate. A row is a repeat when its values equal its agent's last
-IMU row exactly and it was taken within REPEAT_WINDOW_S of it (one loop of Rover's 50 Hz scheduler); repeats
-are dropped and counted.
+(which the vessel asks for), in the same units (mG, mrad/s; libraries/GCS_MAVLink/GCS_Common.cpp send_raw_imu,
+send_scaled_imu), so when both go out in one pass of Rover's GCS update_send they are equal field for field and
+sent within 1 ms (RAW_IMU stamped in us, SCALED_IMU in whole ms); the simulated autopilot sends them at the same
+time. Both decode to an ImuReading, and an EKF that fused both would count one gyro measurement twice: in the
+45-buoy `aggregation` fleet half of the samples were fused twice, an overconfident yaw rate. A row is a repeat
+when its values equal its agent's last IMU row exactly and it was taken within REPEAT_WINDOW_S of it; repeats
+are dropped and counted. The window: a pair sent 0-1 ms apart is placed up to 3 ms apart on the vessel's clock
+(the freshest message of a read is placed at its arrival when its stamp would put it within 2 ms of it:
+firmware_bridge/autopilot_clock.py RESOLUTION_S); with a 2 ms window a tenth of real ArduPilot's pairs were
+fused twice. A sample of a later pass (2.5 ms later, update_send runs at 400 Hz) with the very same values
+would be dropped too; at rest ArduPilot's SITL sends the same values (0, 0, -1001 mG, 0 mrad/s) in each
+message of a stream, 20 ms or more apart, which the 20 ms window of the first version dropped
+(tests/ardupilot/test_real_imu_repeats.py).
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import numpy as np
 from bob_autonomy.core.arrays import FloatArray
 from firmware_bridge.readings import ImuReading, rows_of
 
-REPEAT_WINDOW_S = 0.02
+REPEAT_WINDOW_S = 0.0035  # s: a pair is placed at most 3 ms apart (module docstring)
 
 
 class ImuRepeats:
