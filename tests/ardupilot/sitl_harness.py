@@ -239,6 +239,24 @@ def vessel_config(sitl: RoverSitl, goal: tuple[float, float] = (0.0, 0.0), **ove
     return VesselConfig(**values)
 
 
+def asking_link(sitl: RoverSitl, messages: tuple[int, ...], rate_hz: float) -> socket.socket:
+    """A TCP connection to the SITL's SERIAL0 that has asked for each of `messages` at rate_hz (Hz), as a vessel
+    does (MAV_CMD_SET_MESSAGE_INTERVAL); the caller closes it (`with`)."""
+    from firmware_bridge.autopilot_requests import set_message_interval
+    from firmware_bridge.commands import Encoder
+
+    link = socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0)
+    for message in messages:
+        link.sendall(set_message_interval(Encoder(), 1, message, rate_hz))
+    return link
+
+
+def sent_s(msg) -> float:
+    """ArduPilot's time of sending (s since boot) of a message stamped when it was sent: `time_usec` (RAW_IMU) or
+    `time_boot_ms` (SCALED_IMU, ATTITUDE)."""
+    return msg.time_usec * 1e-6 if hasattr(msg, "time_usec") else msg.time_boot_ms * 1e-3
+
+
 def drive(sitl: RoverSitl, config, seconds: float):
     """Run a `bob_autonomy.onboard.vessel.Vessel` with `config` for `seconds` after its start-up; every 0.5 s record
     (wall s since start, the autopilot's own position as east/north m, its heading deg) and the distance of

@@ -14,15 +14,12 @@ Skipped unless ARDUPILOT_SITL names a built `ardurover` (docs/ardupilot.md).
 from __future__ import annotations
 
 import itertools
-import socket
 import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from sitl_harness import BINARY, NEEDS_SITL, RoverSitl
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, asking_link, sent_s
 
 from bob_autonomy.onboard.imu_repeats import ImuRepeats
-from firmware_bridge.autopilot_requests import set_message_interval
-from firmware_bridge.commands import Encoder
 from firmware_bridge.decoder import TelemetryDecoder
 from firmware_bridge.readings import ImuReading
 
@@ -30,12 +27,7 @@ pytestmark = NEEDS_SITL
 
 LISTEN_S = 8.0
 IMU_FIELDS = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro")
-SENT_S = {"SCALED_IMU": ("time_boot_ms", 1e-3), "RAW_IMU": ("time_usec", 1e-6)}
-
-
-def _sent_s(msg) -> float:
-    field, unit = SENT_S[msg.get_type()]
-    return getattr(msg, field) * unit
+IMU_MESSAGES = frozenset({"SCALED_IMU", "RAW_IMU"})
 
 
 def test_ardupilot_sends_an_imu_sample_twice_and_the_vessel_keeps_one(tmp_path) -> None:
@@ -43,13 +35,11 @@ def test_ardupilot_sends_an_imu_sample_twice_and_the_vessel_keeps_one(tmp_path) 
     dropped = []  # per IMU message, in stream order: whether the vessel dropped it as a repeat
     with RoverSitl(BINARY, "omni", tmp_path) as sitl:
         sitl.wait_initialised()
-        with socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0) as link:
-            for message in (mavlink.MAVLINK_MSG_ID_SCALED_IMU, mavlink.MAVLINK_MSG_ID_RAW_IMU):
-                link.sendall(set_message_interval(Encoder(), 1, message, 25.0))
+        with asking_link(sitl, (mavlink.MAVLINK_MSG_ID_SCALED_IMU, mavlink.MAVLINK_MSG_ID_RAW_IMU), 25.0) as link:
             decoder = TelemetryDecoder(source_system=1, source_component=1)  # as a vessel
             decoder.message_hook = lambda msg: (
-                messages.append((msg.get_type(), _sent_s(msg), tuple(getattr(msg, f) for f in IMU_FIELDS)))
-                if msg.get_type() in SENT_S
+                messages.append((msg.get_type(), sent_s(msg), tuple(getattr(msg, f) for f in IMU_FIELDS)))
+                if msg.get_type() in IMU_MESSAGES
                 else None
             )
             repeats = ImuRepeats(1)

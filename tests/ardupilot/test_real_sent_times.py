@@ -15,10 +15,8 @@ import time
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from sitl_harness import BINARY, NEEDS_SITL, RoverSitl
+from sitl_harness import BINARY, NEEDS_SITL, RoverSitl, asking_link, sent_s
 
-from firmware_bridge.autopilot_requests import set_message_interval
-from firmware_bridge.commands import Encoder
 from firmware_bridge.decoder import TelemetryDecoder
 from firmware_bridge.readings import CompassReading, ImuReading
 
@@ -26,14 +24,8 @@ pytestmark = NEEDS_SITL
 
 READ_EVERY_S = 0.3  # as a vessel whose loop reads its link every 0.3 s
 BURSTS = 40
-# The messages read as IMU or attitude readings, and their time of sending (field, s per unit): RAW_IMU comes
-# too, at ArduPilot's RAW_SENS rate.
-SENT_FIELD = {"SCALED_IMU": ("time_boot_ms", 1e-3), "ATTITUDE": ("time_boot_ms", 1e-3), "RAW_IMU": ("time_usec", 1e-6)}
-
-
-def _sent_s(msg) -> float:
-    field, unit = SENT_FIELD[msg.get_type()]
-    return getattr(msg, field) * unit
+# The messages read as IMU or attitude readings: RAW_IMU comes too, at ArduPilot's RAW_SENS rate.
+SENT_STAMPED = frozenset({"SCALED_IMU", "ATTITUDE", "RAW_IMU"})
 
 
 def _read_all(link: socket.socket) -> bytes:
@@ -57,12 +49,10 @@ def _read_all(link: socket.socket) -> bytes:
 def test_readings_of_one_burst_keep_the_times_ardupilot_sent_them_at(tmp_path) -> None:
     with RoverSitl(BINARY, "omni", tmp_path) as sitl:
         sitl.wait_initialised()
-        with socket.create_connection(("127.0.0.1", sitl.serial0), timeout=5.0) as link:
-            for message in (mavlink.MAVLINK_MSG_ID_SCALED_IMU, mavlink.MAVLINK_MSG_ID_ATTITUDE):
-                link.sendall(set_message_interval(Encoder(), 1, message, 25.0))
+        with asking_link(sitl, (mavlink.MAVLINK_MSG_ID_SCALED_IMU, mavlink.MAVLINK_MSG_ID_ATTITUDE), 25.0) as link:
             decoder = TelemetryDecoder(source_system=1, source_component=1)  # as a vessel
             sent = []  # ArduPilot's time of sending (s since boot) of each IMU and attitude message, in stream order
-            decoder.message_hook = lambda msg: sent.append(_sent_s(msg)) if msg.get_type() in SENT_FIELD else None
+            decoder.message_hook = lambda msg: sent.append(sent_s(msg)) if msg.get_type() in SENT_STAMPED else None
             bursts = []  # per burst: (its arrival, [(placed time, ArduPilot's time s) of each IMU and attitude])
             for _ in range(BURSTS):
                 time.sleep(READ_EVERY_S)
