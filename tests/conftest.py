@@ -7,6 +7,7 @@ stderr turns every later record, from any thread of any later test, into a "Logg
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Iterator
 
 import pytest
@@ -38,3 +39,23 @@ def _kept_in_its_xdist_group(request: pytest.FixtureRequest) -> None:
             "pytest-xdist do not work together; install the versions pyproject.toml pins",
             pytrace=False,
         )
+
+
+# How much nicer (os.nice increment) a worker runs once it takes a test that is not real-time.
+BACKGROUND_NICENESS = 10
+_niced = False
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Under pytest-xdist, a worker that takes a test outside the real-time group lowers its own priority for good.
+
+    The real-time tests (process fleets at 3x, sockets with timeouts) mostly wait on the wall clock, so their worker
+    leaves a core half idle; a third worker uses that share. Niced by BACKGROUND_NICENESS (about a tenth of the
+    weight of a normal process under Linux's scheduler), the number-crunching workers take CPU only when the
+    real-time tests and their child processes do not want it. The real-time group is the largest xdist scope, so
+    it goes first to one worker, which never runs a niced test before it."""
+    global _niced
+    if _niced or "PYTEST_XDIST_WORKER" not in os.environ or item.get_closest_marker("xdist_group"):
+        return
+    os.nice(BACKGROUND_NICENESS)
+    _niced = True
