@@ -39,6 +39,12 @@ def _kept_in_its_xdist_group(request: pytest.FixtureRequest) -> None:
             "pytest-xdist do not work together; install the versions pyproject.toml pins",
             pytrace=False,
         )
+    if grouped and _niced:
+        pytest.fail(
+            "this real-time test runs in a worker that has already run others niced (pytest_runtest_setup): "
+            "pytest-xdist no longer gives the real-time group to a worker of its own first; see pyproject.toml",
+            pytrace=False,
+        )
 
 
 # How much nicer (os.nice increment) a worker runs once it takes a test that is not real-time.
