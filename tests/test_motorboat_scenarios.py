@@ -136,11 +136,14 @@ def test_motorboats_follow_a_leader_boat_in_separate_processes(tmp_path) -> None
 
     A holding follower gets under way when its wish reaches 1.5 x HOLD_SPEED_MPS = 0.3 m/s, or stays above
     HOLD_SPEED_MPS for HOLD_DWELL_S; the goal pull fades over goal_radius_m (60 m) to 0.6 m/s x d / 60 m, so a
-    follower alone stops about 20 m from a stopped leader (where the pull falls under the hold speed)."""
+    follower alone stops about 20 m from a stopped leader (where the pull falls under the hold speed).
+
+    Two runs (2026-12-07, one beside two busy loops): the leader stops at about 155 s; the last follower comes
+    within 50 m of it at 170-190 s and is 37.7-42.8 m off at 210-220 s; 220 s leaves that margin."""
     base, (mesh, gcs) = free_ports(4, extra=2)
     packaged = load_scenario("leader-follower-motorboats")
     data = packaged.model_dump(mode="json", exclude_none=True)
-    data.update(name="leader-follower-processes", duration_s=260.0, dt_s=0.1, log_period_s=1.0)
+    data.update(name="leader-follower-processes", duration_s=220.0, dt_s=0.1, log_period_s=1.0)
     leader, followers = data["groups"][0], data["groups"][1]
     leader["params"].update(waypoints=[[40.0, 0.0], [60.0, 30.0]], speed=0.5)
     followers.update(count=3)
