@@ -12,6 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sitl.experiments.recorder import Recorder
+from sitl.experiments.step_watch import AlwaysInside, ClosestApproach, StepWatch
 from sitl.experiments.swarm_metrics import aggregation_metrics, avoidance_metrics, leader_follower_metrics
 from sitl.fleets.fleet import LockstepFleet
 from sitl.radio.channel import TABLE_1, RadioChannel, measure_delivery_table
@@ -125,6 +126,14 @@ def _perimeter_points(fleet: LockstepFleet, spacing_m: float) -> FloatArray:
     return np.concatenate(points)
 
 
+def always_inside_room(fleet: LockstepFleet, rec: Recorder) -> bool:
+    """Every robot inside the rooms at every step (the recorder's watch), or at every frame where it watched
+    nothing (a recording made without it)."""
+    if rec.watch.inside is not None:
+        return rec.watch.inside.always
+    return all(bool(fleet.world.inside_rooms(f.position).all()) for f in rec.frames)
+
+
 def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
     """How well the robots guard the room's perimeter, and how they re-cover it after removals.
 
@@ -151,12 +160,11 @@ def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, 
     grid = _room_grid(fleet, p.get("grid_m", 0.1))
     perimeter = _perimeter_points(fleet, p.get("grid_m", 0.1))
     times = rec.times()
-    gap, covered, inside = [], [], []
+    gap, covered = [], []
     for f in rec.frames:
         tree = cKDTree(f.position)
         gap.append(tree.query(grid)[0].max())
         covered.append(tree.query(perimeter)[0] <= cover_radius)
-        inside.append(bool(fleet.world.inside_rooms(f.position).all()))
     gap = np.array(gap)
     coverage = np.array([c.mean() for c in covered])
     removals = [e for e in fleet.events_log if e["action"] == "remove"]
@@ -168,7 +176,7 @@ def perimeter_defense_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, 
         "spread_perimeter_coverage": float(coverage[k_before]),
         "final_perimeter_coverage": float(coverage[-1]),
         "final_largest_gap_m": float(gap[-1]),
-        "always_inside_room": bool(all(inside)),
+        "always_inside_room": always_inside_room(fleet, rec),
         "wall_contacts": int(fleet.bodies.wall_contacts),
         "robot_contacts": int(fleet.bodies.robot_contacts),
         "coverage": {"t_s": times.tolist(), "value": np.round(coverage, 4).tolist()},
@@ -299,6 +307,16 @@ def generic_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) ->
             "criteria": {},
         }
     )
+
+
+def step_watch(kind: str, fleet) -> StepWatch:
+    """What the metrics of `kind` need from every step of a run (a lockstep or a process fleet, for its world):
+    the closest approach for "no two ever closer", the room for "never left it"."""
+    if kind == "leader-follower":
+        return StepWatch(closest=ClosestApproach())
+    if kind == "perimeter-defense":
+        return StepWatch(inside=AlwaysInside(fleet.world.inside_rooms))
+    return StepWatch()
 
 
 METRICS: dict[str, MetricsFn] = {

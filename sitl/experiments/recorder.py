@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from sitl.experiments.step_watch import StepWatch
 from sitl.world.world import FloatArray
 
 TRAJECTORY_COLUMNS = (
@@ -34,15 +35,24 @@ class Frame:
 
 @dataclass
 class Recorder:
-    """Keeps frames at a fixed period of simulated time."""
+    """Keeps frames at a fixed period of simulated time, and what `watch` needs of every step (the "ever" and
+    "never" criteria: sitl.experiments.step_watch)."""
 
     period_s: float
     body_names: list[str]
     frames: list[Frame] = field(default_factory=list)
     _next_s: float = 0.0
+    watch: StepWatch = field(default_factory=StepWatch)
 
     def due(self, t: float) -> bool:
         return t + 1e-9 >= self._next_s
+
+    def observe_step(self, t: float, active: NDArray[np.bool_], positions: FloatArray) -> None:
+        """Every step: which agents are active (N,) and all true positions (N, 2) m, for the watch (nothing is
+        read when it watches nothing)."""
+        if self.watch.watching:
+            agents = active.nonzero()[0]
+            self.watch.observe(t, agents, positions[agents])
 
     def record(self, frame: Frame) -> None:
         self.frames.append(frame)

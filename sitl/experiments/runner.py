@@ -26,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from behaviors.collision_avoidance import collision_layer
-from sitl.experiments.metrics import METRICS
+from sitl.experiments.metrics import METRICS, step_watch
 from sitl.experiments.plots import write_figures
 from sitl.experiments.recorder import Frame, Recorder
 from sitl.experiments.scenario import Scenario, scenario_to_toml
@@ -68,12 +68,15 @@ def simulate(scenario: Scenario, progress: bool = False, force: bool = False, ve
 
 def _simulated(fleet: LockstepFleet, progress: bool) -> RunResult:
     scenario = fleet.scenario
-    recorder = Recorder(scenario.log_period_s, [str(k) for k in _body_names(fleet)])
+    recorder = Recorder(
+        scenario.log_period_s, [str(k) for k in _body_names(fleet)], watch=step_watch(scenario.metrics.kind, fleet)
+    )
     steps = round(scenario.duration_s / scenario.dt_s)
     bar = tqdm(total=steps, desc=scenario.name, unit="step", disable=not progress, mininterval=0.5)
     for _ in range(steps + 1):
         if recorder.due(fleet.t):
             recorder.record(_frame(fleet))
+        recorder.observe_step(fleet.t, fleet.active, fleet.bodies.position)
         if fleet.step_index == steps:
             break
         fleet.step()

@@ -100,6 +100,23 @@ def aggregation_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]
     return _finish(result)
 
 
+def closest_approach(rec: Recorder) -> dict:
+    """closest_approach_m: the least distance between two agents over the run, at every step and between steps
+    (the recorder's watch: sitl.experiments.step_watch), with which two and when (closest_approach_agents,
+    _t_s); from the logged frames alone for a recording made without it."""
+    watched = rec.watch.closest
+    if watched is None:
+        return {"closest_approach_m": float(min(nearest_neighbor_m(f.position).min() for f in rec.frames))}
+    if watched.closest is None:
+        return {"closest_approach_m": float("inf")}
+    c = watched.closest
+    return {
+        "closest_approach_m": c.distance_m,
+        "closest_approach_agents": list(c.agents),
+        "closest_approach_t_s": c.t_s,
+    }
+
+
 def leader_follower_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) -> dict:
     """The group follows a driven leader: arrival, spacing, closest approach, the weak buoy's lag."""
     leader = int(p.get("leader", 0))
@@ -109,14 +126,13 @@ def leader_follower_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, fl
     _, leader_xy = rec.agent_series(leader, "position")
     final_goal = leader_xy[-1]
     path_length = float(np.hypot(*np.diff(leader_xy, axis=0).T).sum())
-    closest = np.array([nearest_neighbor_m(f.position).min() for f in rec.frames])
     farthest = np.array([np.hypot(*(f.position - leader_xy[k]).T).max() for k, f in enumerate(rec.frames)])
     nn_final = nearest_neighbor_m(rec.frames[-1].position)
     result: dict = {
         "agents": int(fleet.n),
         "leader": leader,
         "leader_path_m": path_length,
-        "closest_approach_m": float(closest.min()),
+        **closest_approach(rec),
         "final_nn_mean_m": float(nn_final.mean()),
         "final_nn_std_m": float(nn_final.std()),
         "all_within_radius_of_leader_s": None,

@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from firmware_bridge.tlog import TlogWriter
-from sitl.experiments.metrics import METRICS
+from sitl.experiments.metrics import METRICS, step_watch
 from sitl.experiments.plots import write_figures
 from sitl.experiments.recorder import Frame, Recorder
 from sitl.experiments.runner import estimation_errors, write_atomically
@@ -367,6 +367,7 @@ class ProcessFleet(ProcessLifecycle, ProcessEvents):
             self._apply_events()
             if recorder.due(self.t):
                 recorder.record(self._frame())
+            recorder.observe_step(self.t, self.bodies.active, self.bodies.position)
             if self.step_index == steps:
                 break
             self._tick()
@@ -487,7 +488,11 @@ def run_processes_to_directory(
     def write(staging: Path) -> ProcessRunResult:
         fleet = ProcessFleet(scenario, staging, options)
         bodies = {g.name: g.body for g in scenario.groups}
-        recorder = Recorder(scenario.log_period_s, [bodies[fleet.group_names[k]] for k in fleet.group_of])
+        recorder = Recorder(
+            scenario.log_period_s,
+            [bodies[fleet.group_names[k]] for k in fleet.group_of],
+            watch=step_watch(scenario.metrics.kind, fleet),
+        )
         with _stop_on_signals(fleet):
             try:
                 fleet.run(recorder, progress)
