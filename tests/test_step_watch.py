@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sitl.experiments import step_watch
 from sitl.experiments.metrics import METRICS, perimeter_defense_metrics
 from sitl.experiments.recorder import Frame, Recorder
 from sitl.experiments.runner import simulate
@@ -33,8 +34,12 @@ def test_two_boats_that_pass_within_half_a_metre_between_steps_are_caught() -> N
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_the_k_d_tree_candidates_miss_no_pair(seed: int) -> None:
-    """Random crowds with random moves up to 3 m: the least approach is the brute-force one over all pairs."""
+@pytest.mark.parametrize("pairs_from", ["all pairs", "k-d tree"])
+def test_the_least_approach_misses_no_pair(seed: int, pairs_from: str, monkeypatch) -> None:
+    """Random crowds with random moves up to 3 m: the least approach is the brute-force one over all pairs, with
+    every pair examined and with the k-d tree's candidates."""
+    if pairs_from == "k-d tree":
+        monkeypatch.setattr(step_watch, "ALL_PAIRS_UP_TO", 1)
     rng = np.random.default_rng(seed)
     k = int(rng.integers(2, 40))
     start = rng.uniform(0.0, 20.0, (k, 2))

@@ -7,13 +7,14 @@ and process fleets) hand every step's ground truth to a `StepWatch`, and the met
 
 Closest approach: between two steps each agent is taken to move along the straight line from its position at
 the first to its position at the second, and each pair's least distance on those segments (the closest point of
-approach) counts, not only the distances at the steps. Candidate pairs come from a k-d tree: a pair closer than
-the step's least end distance m at any moment of the step is within m + 2 D at its end, D the longest move of
-any agent in the step, so only pairs within that radius are examined.
+approach) counts, not only the distances at the steps. Beyond ALL_PAIRS_UP_TO agents the candidate pairs come from a
+k-d tree: a pair closer than the step's least end distance m at any moment of the step is within m + 2 D at its
+end, D the longest move of any agent in the step, so only pairs within that radius are examined.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -39,16 +40,21 @@ class ClosestApproach:
 
     def __init__(self) -> None:
         self.closest: Approach | None = None
-        self._previous: dict[int, FloatArray] = {}  # agent id -> position (m) at the last step
+        self._previous = np.full((0, 2), np.nan)  # by agent id: position (m) at the last step, NaN if not active
 
     def observe(self, t_s: float, agents: NDArray[np.intp], positions: FloatArray) -> None:
         """Take the positions (k, 2) m of the active agents (ids) at t_s."""
-        previous = self._previous
-        start = np.array([previous.get(a, p) for a, p in zip(agents.tolist(), positions, strict=True)])
-        self._previous = dict(zip(agents.tolist(), positions, strict=True))
+        if agents.size and agents.max() >= len(self._previous):
+            grown = np.full((int(agents.max()) + 1, 2), np.nan)
+            grown[: len(self._previous)] = self._previous
+            self._previous = grown
+        start = self._previous[agents]
+        start = np.where(np.isnan(start), positions, start)  # an agent just active did not travel there
+        self._previous[:] = np.nan
+        self._previous[agents] = positions
         if len(agents) < 2:
             return
-        found = least_approach(start.reshape(-1, 2), positions)
+        found = least_approach(start, positions)
         if found is not None and (self.closest is None or found[0] < self.closest.distance_m):
             distance, i, j = found
             self.closest = Approach(distance, (int(agents[i]), int(agents[j])), t_s)
@@ -58,19 +64,28 @@ class ClosestApproach:
         return None if self.closest is None else self.closest.distance_m
 
 
+ALL_PAIRS_UP_TO = 150  # agents: up to this many every pair is examined (cheaper than building a k-d tree)
+
+
+@functools.cache
+def _all_pairs(k: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    return np.triu_indices(k, 1)
+
+
 def least_approach(start: FloatArray, end: FloatArray) -> tuple[float, int, int] | None:
     """(distance m, i, j) of the pair of rows that comes closest while each moves in a straight line from
     start (k, 2) to end (k, 2) m; None for fewer than two rows."""
     k = len(end)
     if k < 2:
         return None
-    tree = cKDTree(end)
-    nearest, _ = tree.query(end, k=2)
-    longest_move = float(np.hypot(*(end - start).T).max())
-    pairs = tree.query_pairs(float(nearest[:, 1].min()) + 2.0 * longest_move + 1e-9, output_type="ndarray")
-    if len(pairs) == 0:
-        return None
-    i, j = pairs[:, 0], pairs[:, 1]
+    if k <= ALL_PAIRS_UP_TO:
+        i, j = _all_pairs(k)
+    else:
+        tree = cKDTree(end)
+        nearest, _ = tree.query(end, k=2)
+        longest_move = float(np.hypot(*(end - start).T).max())
+        pairs = tree.query_pairs(float(nearest[:, 1].min()) + 2.0 * longest_move + 1e-9, output_type="ndarray")
+        i, j = pairs[:, 0], pairs[:, 1]
     r0 = start[j] - start[i]  # the pair's offset at the start of the step ...
     dr = (end[j] - end[i]) - r0  # ... and its change over the step
     span = np.einsum("ij,ij->i", dr, dr)
