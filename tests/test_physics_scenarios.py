@@ -31,7 +31,12 @@ def test_aggregation_shrinks_then_spreads() -> None:
 def test_leader_follower_keeps_the_group_and_spacing() -> None:
     m = run("leader-follower")
     assert m["leader_path_m"] >= 350
+    # At every step and between steps; eq. (5) alone came to 0.70-0.88 m at 3 of seeds 1-10: the buoys run the
+    # collision avoidance layer, which acts in the crowd and hardly ever for the leader (a stand-on vessel).
     assert m["closest_approach_m"] >= 1.0
+    avoidance = m["collision_avoidance"]
+    assert avoidance["followers"]["interventions"] > 0
+    assert avoidance["leader"]["interventions"] < 0.01 * avoidance["leader"]["updates"]
     assert m["all_within_radius_of_leader_s"] is not None
     # The weak buoy lags but arrives with the group.
     assert m["weak_final_distance_to_leader_m"][0] <= 40.0
