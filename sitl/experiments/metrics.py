@@ -309,7 +309,7 @@ def generic_metrics(fleet: LockstepFleet, rec: Recorder, p: dict[str, float]) ->
     )
 
 
-def step_watch(kind: str, fleet) -> StepWatch:
+def step_watch(kind: str, fleet: LockstepFleet) -> StepWatch:
     """What the metrics of `kind` need from every step of a run (a lockstep or a process fleet, for its world):
     the closest approach for "no two ever closer", the room for "never left it"."""
     if kind == "leader-follower":
