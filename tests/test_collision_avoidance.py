@@ -13,8 +13,9 @@ from behavior_helpers import assert_batch_equivalent, make_table, make_view
 from behaviors.base import Behavior, MemorySpec, View, Wish
 from behaviors.collision_avoidance import AvoidCollisions
 from bob_autonomy.core.behavior_config import BehaviorChoice
-from sitl.experiments.runner import simulate
-from sitl.experiments.scenario import load_scenario, validate_scenario
+from sitl.experiments.runner import hearing_problems, simulate
+from sitl.experiments.scenario import load_scenario, packaged_scenarios, validate_scenario
+from sitl.fleets.fleet import LockstepFleet
 
 
 @dataclass
@@ -119,3 +120,31 @@ def test_the_choice_builds_the_wrapper_and_refuses_bad_parameters() -> None:
         BehaviorChoice(behavior="waypoints", params={"waypoints": [[1.0, 2.0]]}, collision_params={"range_m": 5.0})
     with pytest.raises(ValueError, match="safe_distance_m"):
         AvoidCollisions(Constant([[0.0, 0.0]]), safe_distance_m=20.0, range_m=10.0)
+
+
+def test_broadcasts_more_than_half_the_horizon_apart_are_named_as_too_slow() -> None:
+    layer = AvoidCollisions(Constant([[0.0, 0.0]]), horizon_s=5.0)
+    assert layer.hearing_problem(0.1) is None and layer.hearing_problem(2.5) is None
+    problem = layer.hearing_problem(10.0)
+    assert "5 s ahead" in problem and "every 10 s" in problem and "at least every 2.5 s" in problem
+
+
+def test_a_scenario_avoiding_collisions_on_slow_broadcasts_is_warned_about_and_the_packaged_ones_are_not(
+    caplog,
+) -> None:
+    data = load_scenario("leader-follower").model_dump(mode="json", exclude_none=True)
+    data["network"].update(broadcast_period_s=10.0, expiry_s=30.0)
+    data.update(duration_s=1.0, fidelity="kinematic")
+    data["groups"][1]["count"] = 2
+    data["metrics"]["params"]["weak_agents"] = [3.0]
+    with caplog.at_level("WARNING", logger="sitl.experiments.runner"):
+        simulate(validate_scenario(data, "test scenario"))
+    said = [r.getMessage() for r in caplog.records if "collision avoidance predicts" in r.getMessage()]
+    # followers and the weak buoy predict 5 s ahead (at least every 2.5 s), the leader 3 s (1.5 s)
+    assert len(said) == 3 and any("leader: " in m and "every 1.5 s" in m for m in said), said
+    for name in packaged_scenarios():
+        fleet = LockstepFleet(load_scenario(name).with_overrides(fidelity="kinematic"))
+        try:
+            assert hearing_problems(fleet) == [], name
+        finally:
+            fleet.close()

@@ -343,3 +343,29 @@ def test_a_udp_mesh_link_whose_sends_fail_keeps_its_socket_hears_on_and_sends_ag
     link.close()
     said = [r.getMessage() for r in caplog.records if r.name == "firmware_bridge.links"]
     assert len(said) == 2 and "failing" in said[0] and "works again after" in said[1], said
+
+
+def test_a_vessel_avoiding_collisions_on_broadcasts_too_slow_for_it_says_so(caplog) -> None:
+    """Two vessels avoiding each other act on each other's last broadcast course: at a broadcast every 10 s with a
+    5 s horizon each has turned long before the other hears of it (behaviors.collision_avoidance)."""
+    from bob_autonomy.core.behavior_config import BehaviorChoice
+    from bob_autonomy.onboard.vessel import Vessel, VesselConfig
+
+    said = {}
+    for period in (0.1, 10.0):
+        config = VesselConfig(
+            vehicle="udpout:127.0.0.1:9",
+            system_id=1,
+            behavior=BehaviorChoice(behavior="bob-rule", params={"H": 0}, avoid_collisions=True),
+            origin=(1.3, 103.8),
+            mesh="udpout:127.0.0.1:9",
+            broadcast_period_s=period,
+        )
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="bob_autonomy.onboard.vessel"):
+            vessel = Vessel(config)
+        for link in (vessel.vehicle_link, vessel.mesh_link):
+            link.close()
+        said[period] = [r.getMessage() for r in caplog.records if "collision avoidance" in r.getMessage()]
+    assert said[0.1] == []
+    assert len(said[10.0]) == 1 and "every 10 s" in said[10.0][0] and "--broadcast-period" in said[10.0][0]

@@ -307,6 +307,8 @@ class Vessel(VesselLinks, AutopilotDriving):
         self.sensing = EbotSenses(np.radians(c.ebot.sonar_angles_deg)) if c.kind == EBOT else None
         self.body = MavlinkBody(self.pipeline, self.clock, self.sensing)
         self.agent = Agent(c.agent_id, self.body, network, self.supervisor.behavior(), self.clock, c.neighbor_expiry_s)
+        self._hearing_problem: str | None = None  # the last one said
+        self._say_hearing_problem()
         self.stats = VesselStats()
         self._stop = threading.Event()
         self._next_heartbeat_s = -math.inf
@@ -365,6 +367,14 @@ class Vessel(VesselLinks, AutopilotDriving):
             self._send(heartbeat(encoder=self.autopilot.encoder))
 
     # -- start -----------------------------------------------------------------------------------------
+
+    def _say_hearing_problem(self) -> None:
+        """Warn (once per distinct reason) when the behaviour avoids collisions on broadcasts too slow for it."""
+        layer = collision_layer(self.agent.behavior) if self.mesh_link is not None else None
+        problem = layer.hearing_problem(self.config.broadcast_period_s) if layer is not None else None
+        if problem and problem != self._hearing_problem:
+            logger.warning("vessel %d: %s (--broadcast-period)", self.config.system_id, problem)
+        self._hearing_problem = problem
 
     def _say_pose_wait(self, now: float, position: bool, heading: bool) -> None:
         """Say once when the vessel has held still for POSE_WAIT_S after its start-up for want of a GPS fix or a
@@ -525,6 +535,7 @@ class Vessel(VesselLinks, AutopilotDriving):
             behavior = self.supervisor.behavior()
             if behavior is not self.agent.behavior:
                 self.agent.behavior = behavior
+                self._say_hearing_problem()
             self.agent.step()
             position = self.pipeline.estimate(now).position[0]
             velocity = self.supervisor.velocity(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import socket
@@ -35,6 +36,7 @@ from sitl.fleets.fleet import LockstepFleet
 from sitl.radio.mesh_security import add_mesh_criteria
 
 T = TypeVar("T")
+logger = logging.getLogger(__name__)
 
 STAGING_MARKER = ".bob-sitl-staging"  # in a staging directory while it is being written: "<host> <pid>"
 
@@ -60,6 +62,8 @@ def simulate(scenario: Scenario, progress: bool = False, force: bool = False, ve
     """
     check_run_size(scenario, f"scenario {scenario.name!r}", force=force)
     fleet = LockstepFleet(scenario, vessel_processes=vessel_processes)
+    for name, problem in hearing_problems(fleet):
+        logger.warning("scenario %r, %s: %s (network.broadcast_period_s)", scenario.name, name, problem)
     try:
         return _simulated(fleet, progress)
     finally:
@@ -96,14 +100,27 @@ def _simulated(fleet: LockstepFleet, progress: bool) -> RunResult:
     return RunResult(fleet, recorder, metrics)
 
 
+def _behavior_names(fleet: LockstepFleet) -> list[str]:
+    """The name of each of `fleet.behaviors`: its group's, or event-K for the K-th set-behavior event's."""
+    groups = fleet.group_names
+    return [groups[k] if k < len(groups) else f"event-{k - len(groups)}" for k in range(len(fleet.behaviors))]
+
+
+def hearing_problems(fleet: LockstepFleet) -> list[tuple[str, str]]:
+    """(group or event, why) for each collision avoidance layer that the scenario's broadcasts are too slow for."""
+    period = fleet.scenario.network.broadcast_period_s
+    layers = [(name, collision_layer(b)) for name, b in zip(_behavior_names(fleet), fleet.behaviors, strict=True)]
+    problems = [(name, layer.hearing_problem(period)) for name, layer in layers if layer is not None]
+    return [(name, problem) for name, problem in problems if problem]
+
+
 def collision_counters(fleet: LockstepFleet) -> dict[str, dict[str, int]]:
     """Per group (or set-behavior event) with collision avoidance: how many agent-updates it changed the wish
     (`interventions`) of how many (`updates`); {} when no behaviour has it."""
     out = {}
-    for k, behavior in enumerate(fleet.behaviors):
+    for name, behavior in zip(_behavior_names(fleet), fleet.behaviors, strict=True):
         layer = collision_layer(behavior)
         if layer is not None:
-            name = fleet.group_names[k] if k < len(fleet.group_names) else f"event-{k - len(fleet.group_names)}"
             out[name] = {"interventions": layer.interventions, "updates": layer.updates}
     return out
 
