@@ -136,6 +136,31 @@ BAD_FILES: dict[str, tuple[dict[str, Any] | bytes, tuple[str, ...]]] = {
     "sensor nan": (changed("sensors", {"gps": {"noise_m": float("nan")}}), ("sensors.gps.noise_m",)),
     "radio inf": (changed("network", {"radio": {"a": float("inf")}}), ("network.radio.a",)),
     "metric threshold nan": (changed("metrics", {"params": {"x": float("nan")}}), ("metrics.params.x",)),
+    # The metrics run after the whole run: what they would trip on is refused before it starts.
+    "metric parameter misspelt": (
+        changed("metrics", {"kind": "perimeter-defense", "params": {"min_coverag": 0.7}}),
+        ("metrics.params", "'min_coverag'", "did you mean 'min_coverage'?"),
+    ),
+    "metric names a missing leader": (
+        changed("metrics", {"kind": "leader-follower", "params": {"leader": 3}}),
+        ("metrics.params", "'leader'", "agent 3", "agents 0..2"),
+    ),
+    "metric names a missing weak agent": (
+        changed("metrics", {"kind": "leader-follower", "params": {"weak_agents": [1.0, 44.0]}}),
+        ("'weak_agents'", "agent 44"),
+    ),
+    "metric without its goal": (
+        changed("metrics", {"kind": "avoidance", "params": {"goal_x_m": 1.0}}),
+        ("metrics.params", "need 'goal_y_m'"),
+    ),
+    "metric outcome unknown": (
+        changed("metrics", {"kind": "avoidance", "params": {"goal_x_m": 1.0, "goal_y_m": 1.0, "expected": "over"}}),
+        ("'expected'", "'yield', 'through', 'around'"),
+    ),
+    "metric grid of zero": (
+        changed("metrics", {"kind": "perimeter-defense", "params": {"grid_m": 0.0}}),
+        ("'grid_m'", "positive"),
+    ),
     "self-intersecting room": (
         changed("world.rooms.0.polygon", [[0.0, 0.0], [5.0, 5.0], [5.0, 0.0], [0.0, 5.0]]),
         ("key 'world.rooms.0.polygon'", "crosses itself"),

@@ -31,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from bob_autonomy.core.behavior_config import BehaviorChoice, build_dataclass
 from bob_autonomy.core.geodesy import LocalFrame
 from bob_autonomy.core.safe_read import UnreadableFileError, describe_parse_error, read_small_file
+from sitl.experiments.metric_params import metric_params_problem
 from sitl.radio.channel import RadioChannel
 from sitl.radio.mesh_security import MeshSecuritySpec
 from sitl.vehicles.sensors import CompassSpec, EncoderSpec, GpsSpec, ImuSpec, LightSpec, RangeSpec
@@ -473,6 +474,9 @@ class Scenario(Model):
                 raise ValueError(f"events[{k}].group {event.group!r} is not a group ({names})")
             if event.agents and max(event.agents) >= n:
                 raise ValueError(f"events.{k}.agents: agent {max(event.agents)} does not exist (agents 0..{n - 1})")
+        problem = metric_params_problem(self.metrics.kind, dict(self.metrics.params), n)
+        if problem:
+            raise ValueError(f"metrics.params: {problem}")
         return self
 
     @property
