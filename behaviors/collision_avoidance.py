@@ -115,7 +115,7 @@ class AvoidCollisions(Behavior):
     def hearing_problem(self, broadcast_period_s: float) -> str | None:
         """Why neighbours heard every `broadcast_period_s` (s) are too old for this layer, or None.
 
-        Two buoys avoiding each other at 0.5 m/s (3 m over 5 s) kept 1.6-3.2 m apart with broadcasts every
+        Two buoys avoiding each other at 0.5 m/s (3 m over 5 s) kept 1.6-3.1 m apart with broadcasts every
         1 or 2 s, and came to 0.3 m in one of 8 encounters every 5 s: past half the horizon each has changed
         course long before the other hears of it.
         """

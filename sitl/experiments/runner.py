@@ -62,9 +62,9 @@ def simulate(scenario: Scenario, progress: bool = False, force: bool = False, ve
     """
     check_run_size(scenario, f"scenario {scenario.name!r}", force=force)
     fleet = LockstepFleet(scenario, vessel_processes=vessel_processes)
-    for name, problem in hearing_problems(fleet):
-        logger.warning("scenario %r, %s: %s (network.broadcast_period_s)", scenario.name, name, problem)
     try:
+        for name, problem in hearing_problems(fleet):
+            logger.warning("scenario %r, %s: %s (network.broadcast_period_s)", scenario.name, name, problem)
         return _simulated(fleet, progress)
     finally:
         fleet.close()  # after the metrics, which count the vessels' links
