@@ -523,3 +523,11 @@ def test_any_numbers_anywhere_give_a_scenario_error_or_a_sized_scenario(changes)
         return
     assert np.isfinite([size.steps, size.agent_steps, size.trajectory_rows]).all()
     assert size.agents <= MAX_AGENTS
+
+
+def test_every_metric_kind_says_which_parameters_it_reads() -> None:
+    """A kind missing from metric_params.PARAMS would take any parameter unchecked (as `generic` does on purpose)."""
+    from sitl.experiments.metric_params import PARAMS
+    from sitl.experiments.metrics import METRICS
+
+    assert set(PARAMS) == set(METRICS) - {"generic"}
