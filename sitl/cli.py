@@ -365,12 +365,13 @@ def _keeps_partial(out: Path) -> Iterator[None]:
         else:
             print(f"bob-sitl: interrupted; nothing written to {out}", file=sys.stderr)
         raise
-    except (ScenarioError, FileExistsError, ClusterError):
+    except (ScenarioError, FileExistsError):
         raise  # before the first run: nothing to keep
-    except Exception:
+    except Exception as error:
         kept = len(read_partial(partial_path(out)))
         if kept:
-            print(f"bob-sitl: a run failed; {kept} finished run(s) kept in {partial_path(out)}", file=sys.stderr)
+            what = "a Dask worker differs" if isinstance(error, ClusterError) else "a run failed"
+            print(f"bob-sitl: {what}; {kept} finished run(s) kept in {partial_path(out)}", file=sys.stderr)
         raise
 
 

@@ -6,7 +6,9 @@ other, or on Dask (https://distributed.dask.org): a local cluster of `workers` p
 (`LocalCluster(processes=True, threads_per_worker=1)`, so that no two runs share an interpreter or
 a BLAS thread pool), or an existing cluster whose scheduler address is given (started with Dask's
 own `dask scheduler` and `dask worker ADDRESS`, or by dask-jobqueue on a compute cluster; its
-workers need this package installed, at the same version, for identical results).
+workers need this project and the same numerical packages installed for identical results: every worker is
+checked when the runs start and with every result it sends (`sitl.experiments.run_environment`), and one that
+differs stops the runs with a ClusterError saying what differs).
 
 Results come back to the calling process in the order they finish; the caller records each one as
 it arrives (a sweep appends it to its partial file), so an interrupted run keeps what finished.
@@ -23,6 +25,8 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from tqdm import tqdm
+
+from sitl.experiments.run_environment import differences, environment
 
 LOCAL_HOST = "127.0.0.1"  # a local cluster listens on the loopback interface only
 CONNECT_TIMEOUT_S = 20.0  # to reach an existing scheduler
@@ -87,16 +91,55 @@ def run_tasks(
 def _run_on_dask(client: Any, fn: Callable, payloads: Sequence[Any], on_done: Callable, bar: tqdm) -> None:
     from distributed import as_completed
 
+    here = environment()
+    try:
+        connected = client.run(_worker_environment)  # the workers connected now; later ones with their results
+    except Exception as error:  # raised on a worker, e.g. ModuleNotFoundError: this project is not installed there
+        raise ClusterError(
+            f"cannot ask the Dask workers for their environment ({type(error).__name__}: {error}); is bob-autonomy "
+            "installed in the workers' environment (pip install PATH-TO-THIS-CHECKOUT)?"
+        ) from None
+    for address, there in connected.items():
+        _check_worker(address, here, there)
     token = uuid.uuid4().hex[:12]  # unique task keys: one cluster may serve many sweeps at once
-    futures = [client.submit(fn, p, key=f"bob-sitl-{token}-{i}", pure=False) for i, p in enumerate(payloads)]
+    futures = [
+        client.submit(_run_reporting_environment, fn, p, key=f"bob-sitl-{token}-{i}", pure=False)
+        for i, p in enumerate(payloads)
+    ]
     index = {f.key: i for i, f in enumerate(futures)}
     try:
         for future in as_completed(futures):
-            on_done(index[future.key], future.result())  # a task's exception is raised here
+            address, there, result = future.result()  # a task's exception is raised here
+            _check_worker(address, here, there)  # before the result is kept
+            on_done(index[future.key], result)
             bar.update(1)
     finally:
         with contextlib.suppress(Exception):
             client.cancel(futures)
+
+
+def _worker_environment() -> dict[str, str]:
+    """On a worker: its `environment()` (asked of every connected worker before the runs start)."""
+    return environment()
+
+
+def _run_reporting_environment(fn: Callable[[Any], Any], payload: Any) -> tuple[str, dict[str, str], Any]:
+    """On a worker: (its address, its `environment()`, fn(payload))."""
+    from distributed import get_worker
+
+    return get_worker().address, environment(), fn(payload)
+
+
+def _check_worker(address: str, here: dict[str, str], there: dict[str, str]) -> None:
+    """ClusterError when a worker's fingerprint differs from this process's: its results would not be ours."""
+    differing = differences(here, there)
+    if differing:
+        raise ClusterError(
+            f"the Dask worker {address} would not give the same results as this process: {'; '.join(differing)}. "
+            "Install this same checkout of bob-autonomy and the same package versions in the workers' environment "
+            "(pip install PATH-TO-THIS-CHECKOUT), restart the workers, and run the same command with --resume "
+            "(it skips the runs already finished)"
+        )
 
 
 @contextlib.contextmanager
