@@ -6,6 +6,7 @@ Run on two cheap experiments (radio-table, heading-consensus) with 2 seeds and s
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ import pytest
 import sitl.experiments.reproduce
 from sitl.cli import main
 from sitl.experiments.reproduce import EXPERIMENTS, PASS_RATE, reproduced, select_experiments, summarise
+from sitl.experiments.run_environment import SOURCE_KEY, environment
 from sitl.experiments.scenario import ScenarioError, packaged_scenarios
 from sitl.experiments.sweep import partial_path, read_partial
 
@@ -89,6 +91,9 @@ def test_a_short_reproduction_writes_the_report(tmp_path: Path, capsys) -> None:
     assert text.index("## heading-consensus") < text.index("## radio-table")  # DESIGN.md's order: 1 before 7
     assert "Seeds 5-6 (2 per experiment), run in process" in text
     assert "Durations capped at 12 s: a smoke test" in text
+    env = environment()
+    assert f"Code: bob-autonomy source {env[SOURCE_KEY]}; Python {env['python']}, numpy {env['numpy']}" in text
+    assert json.loads((out / "environment.json").read_text()) == env
     assert "| agreed within 5 deg, s (`consensus_time_s`) |" in text and "| about 11 s |" in text
     for name in ("heading-consensus", "radio-table", "pass_rates"):
         assert (out / "figures" / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 import sitl.experiments.sweep
 from sitl.cli import main
+from sitl.experiments.run_environment import SOURCE_KEY, environment
 from sitl.experiments.scenario import ScenarioError, load_scenario
 from sitl.experiments.sweep import apply_param, parse_param, partial_path, read_partial, run_sweep
 
@@ -207,6 +208,40 @@ def test_an_interrupted_sweep_keeps_its_finished_runs_and_resume_skips_them(work
     assert counting.calls == 2  # 6 runs, 4 kept
     assert (work / "cut" / "sweep.csv").read_bytes() == whole
     assert not partial.exists()
+
+
+@pytest.mark.parametrize(
+    ("recorded", "said"),
+    [
+        ({"numpy": "1.0.0"}, "numpy 1.0.0 there, "),
+        ({SOURCE_KEY: "0" * 16}, f"{SOURCE_KEY} {'0' * 16} there, "),
+        (None, "no record of the code that made them"),  # a partial file from before environments were recorded
+    ],
+)
+def test_resume_refuses_runs_kept_by_other_code_or_libraries(work: Path, capsys, monkeypatch, recorded, said) -> None:
+    argv = ["sweep", *TINY, "--runs", "2"]
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", Interrupting(allowed=1))
+    assert main([*argv, "--out", "o"]) == 130
+    partial = partial_path(work / "o")
+    entry = json.loads(partial.read_text())
+    assert entry["environment"] == environment()  # each kept run says what made it
+    if recorded is None:
+        del entry["environment"]
+    else:
+        entry["environment"] = {**entry["environment"], **recorded}
+    partial.write_text(json.dumps(entry) + "\n")
+    counting = Interrupting(allowed=10**6)
+    monkeypatch.setattr(sitl.experiments.sweep, "simulate", counting)
+    capsys.readouterr()
+    assert main([*argv, "--out", "o", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "resuming would mix two versions' results: remove the file" in err
+    assert counting.calls == 0 and len(read_partial(partial)) == 1  # nothing run, nothing thrown away
+
+
+def test_a_sweep_says_what_code_and_libraries_made_it(work: Path) -> None:
+    assert main(["sweep", *TINY, "--runs", "1", "--out", "o"]) == 0
+    assert json.loads((work / "o" / "environment.json").read_text()) == environment()
 
 
 def test_an_interrupt_before_any_run_finished_leaves_nothing(work: Path, capsys, monkeypatch) -> None:

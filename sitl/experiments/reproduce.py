@@ -30,6 +30,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sitl.experiments.distributed import check_execution, describe_execution
+from sitl.experiments.run_environment import SOURCE_KEY, environment
 from sitl.experiments.runner import check_output_directory, simulate, write_atomically
 from sitl.experiments.scenario import Scenario, ScenarioError, load_scenario
 from sitl.experiments.sweep import (
@@ -39,6 +40,7 @@ from sitl.experiments.sweep import (
     finish_partial,
     metrics_row,
     partial_path,
+    write_environment,
     write_rows_csv,
 )
 from sitl.fleets.budget import check_sweep_size
@@ -305,6 +307,7 @@ def reproduce(
     def write(staging: Path) -> None:
         write_rows_csv(rows, staging / "runs.csv", ["experiment", "agents", "seed", "passed"])
         write_rows_csv(report, staging / "report.csv", REPORT_COLUMNS)
+        write_environment(staging)
         (staging / "figures").mkdir()
         for experiment in experiments:
             _figure_plot(experiment, rows, staging / "figures" / f"{experiment.name}.png")
@@ -433,6 +436,7 @@ def markdown(
 ) -> str:
     """report.md: a summary table, then per experiment its criteria and figures beside the paper's."""
     seeds = list(seeds)
+    env = environment()
     span = f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else ", ".join(map(str, seeds))
     lines = [
         "# The paper's experiments over many seeds",
@@ -440,6 +444,8 @@ def markdown(
         f"Seeds {span} ({len(seeds)} per experiment), run {where}; wall time of this invocation "
         f"{wall_s:,.0f} s (runs resumed from a partial file are not in it).",
         f"A criterion reproduces when it passes at at least {PASS_RATE:.0%} of the seeds.",
+        f"Code: bob-autonomy source {env[SOURCE_KEY]}; Python {env['python']}, numpy {env['numpy']}, scipy "
+        f"{env['scipy']}, casadi {env['casadi']} (all in environment.json).",
     ]
     if duration_s is not None:
         lines.append(f"**Durations capped at {duration_s:g} s: a smoke test, not a reproduction.**")

@@ -41,6 +41,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sitl.experiments.distributed import check_execution, run_tasks
+from sitl.experiments.run_environment import differences, environment
 from sitl.experiments.runner import _make_directories, check_output_directory, simulate, write_atomically
 from sitl.experiments.scenario import Scenario, ScenarioError, validate_scenario
 from sitl.fleets.budget import check_sweep_size
@@ -268,20 +269,41 @@ def run_digest(scenario: Scenario, fn: Callable) -> str:
 
 def read_partial(path: Path) -> dict[str, dict[str, Any]]:
     """digest -> row of every complete line of a partial file (a line cut short by a kill is ignored)."""
-    rows: dict[str, dict[str, Any]] = {}
+    return {str(entry["run"]): dict(entry["row"]) for entry in _partial_entries(path)}
+
+
+def _partial_entries(path: Path) -> list[dict[str, Any]]:
+    """The complete lines of a partial file: {"run": digest, "environment": {...}, "row": {...}}."""
     try:
         text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
-        return rows
+        return []
     except (OSError, UnicodeDecodeError) as error:
         raise PartialSweepError(f"{path}: cannot read the partial sweep ({error}); remove it to start again") from None
+    entries = []
     for line in text.splitlines():
         try:
             entry = json.loads(line)
-            rows[str(entry["run"])] = dict(entry["row"])
+            if isinstance(entry, dict) and isinstance(entry["row"], dict):
+                entries.append({**entry, "run": str(entry["run"])})
         except (ValueError, KeyError, TypeError):
             continue
-    return rows
+    return entries
+
+
+def _check_partial_environment(path: Path, entries: list[dict[str, Any]]) -> None:
+    """PartialSweepError when runs kept in a partial file were made with other code or libraries than this
+    process's (`run_environment.environment`): resuming would mix results of two versions in one table."""
+    here = environment()
+    for entry in entries:
+        there = entry.get("environment")
+        differing = differences(here, there) if isinstance(there, dict) else ["no record of the code that made them"]
+        if differing:
+            raise PartialSweepError(
+                f"{path}: its finished runs were made with other code or libraries ({'; '.join(differing)}), so "
+                "resuming would mix two versions' results: remove the file to run them all again, or resume with "
+                "the code and packages that made them"
+            )
 
 
 class _PartialWriter:
@@ -298,7 +320,7 @@ class _PartialWriter:
         if self.handle is None:
             self.created = _make_directories(self.path.parent, self.path.parent)
             self.handle = open(self.path, "a", encoding="utf-8")  # noqa: SIM115 (closed in close())
-        self.handle.write(json.dumps({"run": digest, "row": row}) + "\n")
+        self.handle.write(json.dumps({"run": digest, "environment": environment(), "row": row}) + "\n")
         self.handle.flush()
         os.fsync(self.handle.fileno())
 
@@ -337,12 +359,14 @@ def execute_runs(
     check_execution(workers, scheduler)
     done: dict[str, dict[str, Any]] = {}
     if os.path.lexists(partial):
-        done = read_partial(partial)
+        entries = _partial_entries(partial)
+        done = {entry["run"]: dict(entry["row"]) for entry in entries}
         if not resume:
             raise PartialSweepError(
                 f"{partial} holds {len(done)} finished run(s) of an interrupted sweep: add --resume to continue it "
                 "(those runs are skipped), or remove the file to start again"
             )
+        _check_partial_environment(partial, entries)
     digests = [run_digest(r.scenario, fn) for r in runs]
     rows: list[dict[str, Any] | None] = [
         {**done[d], **r.columns} if d in done else None for d, r in zip(digests, runs, strict=True)
@@ -428,11 +452,19 @@ def run_sweep(
 
     def write(staging: Path) -> None:
         write_rows_csv(rows, staging / "sweep.csv", ["agents", *paths, "seed", "passed"])
+        write_environment(staging)
         _plot(rows, axis, [c for c in swept if c != axis], plot_keys, scenario.name, staging / "sweep.png")
 
     write_atomically(out, write, marker="sweep.csv")
     finish_partial(partial)
     return rows
+
+
+def write_environment(directory: Path) -> None:
+    """environment.json: the code and libraries that made the runs (`run_environment.environment`; the same for
+    every run: the workers were checked against it, and so were the runs a resumed sweep kept)."""
+    text = json.dumps(environment(), indent=2) + "\n"
+    (Path(directory) / "environment.json").write_text(text, encoding="utf-8")
 
 
 def write_rows_csv(rows: list[dict], path: Path, leading: Sequence[str]) -> None:
