@@ -547,7 +547,8 @@ def test_five_buoys_in_separate_processes_aggregate(tmp_path: Path) -> None:
 
     # The outputs of a lockstep run, plus the telemetry log and the vessels' logs.
     names = {p.name for p in out.iterdir()}
-    assert {"trajectory.csv", "metrics.json", "scenario.toml", "trajectories.png", "hull_area.png"} <= names
+    assert {"trajectory.csv", "metrics.json", "scenario.toml", "environment.json", "trajectories.png"} <= names
+    assert "hull_area.png" in names
     assert {"vehicles.tlog"} | {f"vessel-{k:02d}.{x}" for k in range(1, 6) for x in ("log", "out")} <= names
     rows = (out / "trajectory.csv").read_text().splitlines()
     assert rows[0].split(",") == list(TRAJECTORY_COLUMNS)

@@ -16,6 +16,7 @@ import pytest
 
 import sitl.experiments.runner
 from sitl.cli import main
+from sitl.experiments.run_environment import environment
 from sitl.experiments.scenario import Scenario, load_scenario, packaged_scenarios, validate_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -53,7 +54,10 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, sitl.e
 def test_outputs_written(finished_run) -> None:
     out, _, _ = finished_run
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["headings.png", "metrics.json", "scenario.toml", "trajectories.png", "trajectory.csv"]
+    assert names == [
+        "environment.json", "headings.png", "metrics.json", "scenario.toml", "trajectories.png", "trajectory.csv"
+    ]  # fmt: skip
+    assert json.loads((out / "environment.json").read_text()) == environment()
     # No staging directory left beside it.
     assert sorted(p.name for p in out.parent.iterdir()) == ["consensus"]
 

@@ -30,7 +30,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sitl.experiments.distributed import check_execution, describe_execution
-from sitl.experiments.run_environment import SOURCE_KEY, environment
+from sitl.experiments.run_environment import SOURCE_KEY, environment, write_environment
 from sitl.experiments.runner import check_output_directory, simulate, write_atomically
 from sitl.experiments.scenario import Scenario, ScenarioError, load_scenario
 from sitl.experiments.sweep import (
@@ -40,7 +40,6 @@ from sitl.experiments.sweep import (
     finish_partial,
     metrics_row,
     partial_path,
-    write_environment,
     write_rows_csv,
 )
 from sitl.fleets.budget import check_sweep_size

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import importlib.util
+import json
 import platform
 from pathlib import Path
 
@@ -66,3 +67,10 @@ def differences(here: dict[str, str], there: dict[str, str]) -> list[str]:
         for key in keys
         if here.get(key) != there.get(key)
     ]
+
+
+def write_environment(directory: Path) -> None:
+    """environment.json in `directory`: the fingerprint of the code and libraries that made its runs (a sweep's
+    workers were checked against it, and so were the runs a resumed sweep kept)."""
+    text = json.dumps(environment(), indent=2) + "\n"
+    (Path(directory) / "environment.json").write_text(text, encoding="utf-8")

@@ -30,6 +30,7 @@ from behaviors.collision_avoidance import collision_layer
 from sitl.experiments.metrics import METRICS, step_watch
 from sitl.experiments.plots import write_figures
 from sitl.experiments.recorder import Frame, Recorder
+from sitl.experiments.run_environment import write_environment
 from sitl.experiments.scenario import Scenario, scenario_to_toml
 from sitl.fleets.budget import check_run_size
 from sitl.fleets.fleet import LockstepFleet
@@ -177,7 +178,7 @@ def _frame(fleet: LockstepFleet) -> Frame:
 def run_to_directory(
     scenario: Scenario, out: Path, progress: bool = False, force: bool = False, vessel_processes: int = 1
 ) -> RunResult:
-    """Simulate and write trajectory.csv, metrics.json, figures and scenario.toml to `out`.
+    """Simulate and write trajectory.csv, metrics.json, figures, scenario.toml and environment.json to `out`.
 
     Everything is written to a temporary directory beside `out` and moved in
     place only when complete, so a failed run leaves no half-written output.
@@ -191,6 +192,7 @@ def run_to_directory(
         result.metrics["figures"] = write_figures(result.fleet, result.recorder, result.metrics, staging)
         (staging / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
         (staging / "scenario.toml").write_text(scenario_to_toml(scenario))
+        write_environment(staging)
         return result
 
     return write_atomically(out, write)

@@ -41,7 +41,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sitl.experiments.distributed import check_execution, run_tasks
-from sitl.experiments.run_environment import differences, environment
+from sitl.experiments.run_environment import differences, environment, write_environment
 from sitl.experiments.runner import _make_directories, check_output_directory, simulate, write_atomically
 from sitl.experiments.scenario import Scenario, ScenarioError, validate_scenario
 from sitl.fleets.budget import check_sweep_size
@@ -458,13 +458,6 @@ def run_sweep(
     write_atomically(out, write, marker="sweep.csv")
     finish_partial(partial)
     return rows
-
-
-def write_environment(directory: Path) -> None:
-    """environment.json: the code and libraries that made the runs (`run_environment.environment`; the same for
-    every run: the workers were checked against it, and so were the runs a resumed sweep kept)."""
-    text = json.dumps(environment(), indent=2) + "\n"
-    (Path(directory) / "environment.json").write_text(text, encoding="utf-8")
 
 
 def write_rows_csv(rows: list[dict], path: Path, leading: Sequence[str]) -> None:

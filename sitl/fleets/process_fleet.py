@@ -51,6 +51,7 @@ from firmware_bridge.tlog import TlogWriter
 from sitl.experiments.metrics import METRICS, step_watch
 from sitl.experiments.plots import write_figures
 from sitl.experiments.recorder import Frame, Recorder
+from sitl.experiments.run_environment import write_environment
 from sitl.experiments.runner import estimation_errors, write_atomically
 from sitl.experiments.scenario import BehaviorChoice, Scenario, scenario_to_toml
 from sitl.fleets.fleet import LockstepFleet, build_world, initial_poses, motorboat_params
@@ -507,6 +508,7 @@ def run_processes_to_directory(
         result.metrics["figures"] = write_figures(fleet, recorder, result.metrics, staging)
         (staging / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
         (staging / "scenario.toml").write_text(scenario_to_toml(scenario))
+        write_environment(staging)
         return result
 
     return write_atomically(out, write)
