@@ -27,7 +27,7 @@ _ENVIRONMENT: dict[str, str] | None = None  # worked out once per process
 
 def environment() -> dict[str, str]:
     """This process's fingerprint: Python's version and machine, each numerical package's version and a digest of
-    this project's source files (name -> value, all strings). Computed once per process (about 10 ms)."""
+    this project's source files (name -> value, all strings). Computed once per process (about 30 ms)."""
     global _ENVIRONMENT
     if _ENVIRONMENT is None:
         found = {"python": platform.python_version(), "machine": platform.machine()}
