@@ -269,7 +269,12 @@ def run_digest(scenario: Scenario, fn: Callable) -> str:
 
 def read_partial(path: Path) -> dict[str, dict[str, Any]]:
     """digest -> row of every complete line of a partial file (a line cut short by a kill is ignored)."""
-    return {str(entry["run"]): dict(entry["row"]) for entry in _partial_entries(path)}
+    return _rows_by_run(_partial_entries(path))
+
+
+def _rows_by_run(entries: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """digest -> row of partial-file entries (a later line for the same run wins)."""
+    return {entry["run"]: dict(entry["row"]) for entry in entries}
 
 
 def _partial_entries(path: Path) -> list[dict[str, Any]]:
@@ -360,7 +365,7 @@ def execute_runs(
     done: dict[str, dict[str, Any]] = {}
     if os.path.lexists(partial):
         entries = _partial_entries(partial)
-        done = {entry["run"]: dict(entry["row"]) for entry in entries}
+        done = _rows_by_run(entries)
         if not resume:
             raise PartialSweepError(
                 f"{partial} holds {len(done)} finished run(s) of an interrupted sweep: add --resume to continue it "
